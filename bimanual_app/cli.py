@@ -1,0 +1,72 @@
+"""The ``bijcr`` command line.
+
+Each sub-command lives in its own module exposing ``HELP`` (one line), ``add_arguments(parser)`` and
+``run(args) -> int``. Those modules import only the standard library at top level, so ``bijcr --help``
+starts fast; heavy libraries (torch, open3d, pybullet) are imported inside ``run``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# command name -> module; order is the order shown in --help
+COMMANDS: dict[str, str] = {
+    "check": "bimanual_app.scene.cli",
+    "synth": "bimanual_app.synth.cli",
+    "reconstruct": "bimanual_app.reconstruction.cli",
+    "calibrate": "calibration.cli",
+    "segment": "segmentation.cli",
+    "reach": "bimanual_app.planning.cli",
+    "demo": "bimanual_app.demo",
+}
+
+
+def _available() -> dict[str, object]:
+    mods = {}
+    for name, modname in COMMANDS.items():
+        try:
+            mods[name] = importlib.import_module(modname)
+        except ModuleNotFoundError as e:  # a stage not built yet in this checkout
+            if e.name and modname.startswith(e.name):
+                continue
+            raise
+    return mods
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="bijcr",
+        description="Bi-JCR: marker-free calibration of two robot arms with wrist cameras, and bimanual tasks.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, mod in _available().items():
+        p = sub.add_parser(name, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP))
+        mod.add_arguments(p)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "command", None):
+        parser.print_help()
+        return 2
+    from bimanual_app.io_utils import InputError
+
+    try:
+        return int(args._run(args) or 0)
+    except InputError as e:
+        print(f"bijcr {args.command}: input problem(s):", file=sys.stderr)
+        for p in e.problems:
+            print(f"  - {p}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"bijcr {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
