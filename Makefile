@@ -10,7 +10,7 @@ setup:
 	@bash tools/setup_env.sh
 
 demo: setup
-	$(VENV)/bin/bijcr demo scenes/demo --out $(DEMO_OUT)
+	$(VENV)/bin/bijcr run scenes/demo --out $(DEMO_OUT)
 
 test: setup
 	$(PY) -m pytest -q -p no:cacheprovider

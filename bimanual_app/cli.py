@@ -18,8 +18,11 @@ COMMANDS: dict[str, str] = {
     "reconstruct": "bimanual_app.reconstruction.cli",
     "calibrate": "calibration.cli",
     "segment": "segmentation.cli",
+    "grasp": "grasping.cli",
     "reach": "bimanual_app.planning.cli",
-    "demo": "bimanual_app.demo",
+    "task": "bimanual_app.tasks.cli",
+    "capture": "bimanual_app.hardware.capture_cli",
+    "run": "bimanual_app.app.run_cli",
 }
 
 

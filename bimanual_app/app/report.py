@@ -1,0 +1,184 @@
+"""``report.html``: one self-contained page (every picture and animation embedded) of a pipeline run."""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import math
+from pathlib import Path
+
+from bimanual_app.io_utils import atomic_open
+
+from .pipeline import StageRecord
+
+_MIME = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".jpeg": "image/jpeg", ".mp4": "video/mp4"}
+
+_CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;color:#222}
+h1{margin-bottom:.2em} h2{border-bottom:1px solid #ddd;padding-bottom:.2em;margin-top:1.6em}
+table{border-collapse:collapse;margin:.6em 0} td,th{border:1px solid #ddd;padding:.25em .6em;text-align:left;font-size:.92em}
+th{background:#f5f5f5} .ok{color:#176b2c;font-weight:600} .fail{color:#b00020;font-weight:600} .cached{color:#666}
+.warn{background:#fff7e0;border-left:4px solid #f0a000;padding:.4em .8em;margin:.4em 0}
+figure{display:inline-block;margin:.5em;vertical-align:top} figure img,figure video{max-width:560px;border:1px solid #ccc}
+figcaption{font-size:.85em;color:#555} pre{background:#f7f7f7;padding:.6em;overflow-x:auto;font-size:.8em;max-height:18em}
+"""
+
+
+def _embed(path: Path, caption: str) -> str:
+    mime = _MIME.get(path.suffix.lower())
+    if mime is None or not path.exists():
+        return ""
+    data = base64.b64encode(path.read_bytes()).decode()
+    cap = html.escape(caption)
+    if mime.startswith("video"):
+        body = f'<video controls loop autoplay muted src="data:{mime};base64,{data}"></video>'
+    else:
+        body = f'<img alt="{cap}" src="data:{mime};base64,{data}">'
+    return f"<figure>{body}<figcaption>{cap}</figcaption></figure>"
+
+
+def _fmt(v, unit: str = "", digits: int = 3) -> str:
+    if isinstance(v, (int, float)) and math.isfinite(v):
+        return f"{v:.{digits}f}{unit}"
+    return html.escape(str(v))
+
+
+def _json(path: Path) -> dict | None:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+
+
+def _calibration_section(d: Path) -> str:
+    cal = _json(d / "calibration.json")
+    if cal is None:
+        return "<p>No calibration was produced.</p>"
+    import numpy as np
+
+    from bimanual_app.transforms import rotation_angle
+
+    unc = cal.get("uncertainty", {}) or {}
+    rows = []
+
+    def unc_of(key):
+        u = unc.get(key)
+        if isinstance(u, dict):
+            parts = []
+            if "rotation_deg" in u:
+                parts.append(f"±{_fmt(u['rotation_deg'], '°', 2)}")
+            if "translation_mm" in u:
+                parts.append(f"±{_fmt(u['translation_mm'], ' mm', 1)}")
+            if "scale_rel" in u:
+                parts.append(f"±{_fmt(100 * u['scale_rel'], ' %', 2)}")
+            return " ".join(parts) or html.escape(json.dumps(u))
+        if isinstance(u, (int, float)):
+            return f"±{_fmt(u, '', 4)}"
+        return "–"
+
+    for key in ("T_e1_c1", "T_e2_c2", "T_b1_b2"):
+        T = np.array(cal[key])
+        t = T[:3, 3] * 1000
+        ang = np.degrees(rotation_angle(T[:3, :3]))
+        rows.append(f"<tr><td>{key}</td><td>[{t[0]:.1f}, {t[1]:.1f}, {t[2]:.1f}] mm</td><td>{ang:.2f}°</td><td>{unc_of(key)}</td></tr>")
+    rows.append(f"<tr><td>scale</td><td colspan=2>{_fmt(cal['scale'], '', 5)} m per model unit</td><td>{unc_of('scale')}</td></tr>")
+    res = cal.get("residuals", {})
+    views = cal.get("views_used", {})
+    out = ["<table><tr><th>output</th><th>translation</th><th>rotation angle</th><th>uncertainty (1σ)</th></tr>", *rows, "</table>"]
+    out.append(f"<p>Views used: primary {views.get('primary')}, secondary {views.get('secondary')}. "
+               f"Mean AX=XB residuals: {_fmt(res.get('rotation_rad', float('nan')) * 180 / math.pi, '°', 3)}, "
+               f"{_fmt(res.get('translation_m', float('nan')) * 1000, ' mm', 2)}. Method: {html.escape(str(cal.get('method', '?')))}.</p>")
+    for w in cal.get("warnings", []) or []:
+        out.append(f'<div class="warn">{html.escape(str(w))}</div>')
+    ev = cal.get("evaluation")
+    if isinstance(ev, dict):
+        out.append("<p><b>Against ground truth (evaluation only):</b> " + html.escape(json.dumps(ev)) + "</p>")
+    out.append(_embed(d / "calibration.png", "Both arms' end effectors and calibrated cameras in b1, and the metric cloud"))
+    return "\n".join(out)
+
+
+def _segments_section(d: Path) -> str:
+    seg = _json(d / "segments.json")
+    out = []
+    if seg is not None:
+        objs = seg.get("objects", seg if isinstance(seg, list) else [])
+        if objs:
+            out.append("<table><tr><th>object</th><th>points</th><th>centroid in b1 (m)</th><th>box extents (cm)</th></tr>")
+            for o in objs:
+                c = o.get("centroid", [float("nan")] * 3)
+                e = o.get("extent", o.get("extents", [float("nan")] * 3))
+                out.append(f"<tr><td>{o.get('id')}</td><td>{o.get('points', o.get('n_points', ''))}</td>"
+                           f"<td>{', '.join(_fmt(x, '', 3) for x in c)}</td><td>{' x '.join(_fmt(100 * x, '', 1) for x in e)}</td></tr>")
+            out.append("</table>")
+    out.append(_embed(d / "segments.png", "Segments from above and from the side"))
+    return "\n".join(out) or "<p>No segmentation was produced.</p>"
+
+
+def _grasps_section(d: Path) -> str:
+    g = _json(d / "grasps.json")
+    out = []
+    if g is not None:
+        objs = g.get("objects", [])
+        out.append("<table><tr><th>object</th><th>single grasps</th><th>best score</th><th>joint pairs</th><th>handover pairs</th></tr>")
+        for o in objs:
+            gs = o.get("grasps", [])
+            best = max((x.get("score", 0) for x in gs), default=float("nan"))
+            out.append(f"<tr><td>{o.get('id')}</td><td>{len(gs)}</td><td>{_fmt(best, '', 2)}</td>"
+                       f"<td>{len(o.get('joint', o.get('joint_pairs', [])) or [])}</td><td>{len(o.get('handover', o.get('handover_pairs', [])) or [])}</td></tr>")
+        out.append("</table>")
+    out.append(_embed(d / "grasps.png", "Best grasps drawn on the cloud"))
+    return "\n".join(out) or "<p>No grasps were produced.</p>"
+
+
+def _task_section(d: Path, name: str) -> str:
+    t = _json(d / "task.json")
+    out = []
+    if t is not None:
+        ok = t.get("success")
+        cls = "ok" if ok else "fail"
+        out.append(f'<p>Outcome: <span class="{cls}">{"success" if ok else "failure"}</span>'
+                   f" – {html.escape(str(t.get('reason', t.get('message', ''))))}</p>")
+        if t.get("object") is not None:
+            out.append(f"<p>Object: {html.escape(str(t.get('object')))} {html.escape(str(t.get('object_reason', '')))}</p>")
+    for f in sorted(d.glob("*.gif")) + sorted(d.glob("*.mp4")):
+        out.append(_embed(f, f"{name}: physics preview ({f.name})"))
+    for f in sorted(d.glob("*.png")):
+        out.append(_embed(f, f"{name}: {f.stem.replace('_', ' ')}"))
+    return "\n".join(out) or f"<p>No {name} result.</p>"
+
+
+def write_report(out_dir: Path, scene_name: str, records: list[StageRecord], warnings: list[str]) -> Path:
+    """Write ``out_dir/report.html`` (atomic) and return its path."""
+    secs = []
+    status_rows = []
+    total = 0.0
+    for r in records:
+        cls = {"ran": "ok", "cached": "cached", "failed": "fail", "skipped": "cached"}[r.status]
+        total += r.seconds if r.status == "ran" else 0.0
+        status_rows.append(f'<tr><td>{html.escape(r.name)}</td><td class="{cls}">{r.status}</td>'
+                           f"<td>{r.seconds:.1f} s</td><td>{html.escape(r.message)}</td></tr>")
+    secs.append("<h2>Stages</h2><table><tr><th>stage</th><th>status</th><th>time</th><th>note</th></tr>"
+                + "".join(status_rows) + f"</table><p>Total time of the stages run now: {total:.1f} s.</p>")
+    if warnings:
+        secs.append("<h2>Warnings</h2>" + "".join(f'<div class="warn">{html.escape(w)}</div>' for w in warnings))
+    failed = [r for r in records if r.status == "failed"]
+    for r in failed:
+        secs.append(f"<h2>Failure in stage '{html.escape(r.name)}'</h2><p>{html.escape(r.message)}</p>"
+                    f"<pre>{html.escape(r.log[-4000:])}</pre>")
+    if (p := out_dir / "scene_preview.png").exists():
+        secs.append("<h2>Capture</h2>" + _embed(p, "The capture: rendered or recorded views of both arms"))
+    secs.append("<h2>Calibration</h2>" + _calibration_section(out_dir / "calibration"))
+    secs.append("<h2>Metric scene and segments</h2>" + _segments_section(out_dir / "segments"))
+    secs.append("<h2>Grasps</h2>" + _grasps_section(out_dir / "grasps"))
+    for task in ("joint-grasp", "handover"):
+        d = out_dir / "tasks" / task
+        if d.exists():
+            secs.append(f"<h2>Task: {task}</h2>" + _task_section(d, task))
+    page = (f"<!doctype html><html><head><meta charset='utf-8'><title>Bi-JCR report – {html.escape(scene_name)}</title>"
+            f"<style>{_CSS}</style></head><body><h1>Bi-JCR report</h1><p>Scene <b>{html.escape(scene_name)}</b>, "
+            f"output folder <code>{html.escape(str(out_dir))}</code>.</p>" + "\n".join(secs) + "</body></html>")
+    path = out_dir / "report.html"
+    with atomic_open(path) as f:
+        f.write(page)
+    return path
