@@ -13,7 +13,7 @@ demo: setup
 	$(VENV)/bin/bijcr run scenes/demo --out $(DEMO_OUT)
 
 test: setup
-	$(PY) -m pytest -q -p no:cacheprovider
+	$(PY) -m pytest -q -p no:cacheprovider -p no:dash
 
 bench: setup
 	$(PY) bench/calibration.py

@@ -1,0 +1,40 @@
+"""Bi-JCR joint calibration: both wrist-camera hand-eye transforms, the reconstruction's metric scale, the
+second base, and the metric scene cloud in b1 (docs/calibration.md).
+
+Public API:
+    calibrate(scene, method="absolute", options=None) -> CalibrationResult     (a loaded Scene)
+    solve_bijcr(T_b1_e, T_w_c1, T_b2_e, T_w_c2, method=..., options=None) -> CalibrationResult  (arrays)
+    solve_single_arm(T_b_e, T_w_c, method=..., options=None) -> dict            (one arm, its own scale)
+    scene_cloud(scene, result, conf_threshold=None) -> (points_b1, colors, info)
+    metric_cloud(pts3d, T_b1_w, scale, conf=None, colors=None, conf_threshold=None) -> (points, colors, info)
+    write_outputs(out_dir, scene, result) -> {name: Path}   (calibration.json, scene_b1.ply, calibration.png, ros/)
+    CalibrationOptions, CalibrationResult, DegenerateCaptureError, METHODS, DEFAULT_METHOD
+CLI: ``bijcr calibrate SCENE --out DIR [--method absolute|paper|paper-norefine]`` (calibration.cli).
+"""
+
+from __future__ import annotations
+
+import importlib
+
+# name -> private module; imported on first use (PEP 562) so that importing ``calibration.cli`` for
+# ``bijcr --help`` does not pull in numpy/scipy.
+_EXPORTS = {
+    "calibrate": "_api", "scene_cloud": "_api", "write_outputs": "_api",
+    "metric_cloud": "_cloud",
+    "solve_bijcr": "_solve", "solve_single_arm": "_solve", "CalibrationOptions": "_solve",
+    "CalibrationResult": "_solve", "DegenerateCaptureError": "_solve", "METHODS": "_solve", "DEFAULT_METHOD": "_solve",
+}
+
+__all__ = list(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        value = getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'calibration' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(list(globals()) + __all__)

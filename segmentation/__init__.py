@@ -1,0 +1,24 @@
+"""Graph-based segmentation of a metric table-top cloud in b1: the table and one segment per object.
+
+Public API:
+    segment(points, colors=None, normals=None, mask_ids=None, params=None, bases=None, source="points",
+            progress=False) -> SegmentResult
+    SegmentParams: the tunables (with the reasons for their defaults).
+    SegmentResult: labels (N,) int32 (-1 table/background, 0..K-1 objects), table, objects, stats, timings.
+    ObjectSummary: per object: points, centroid, table-aligned oriented box (center, rotation, extents).
+    TablePlane: the fitted table.
+    MaskViews: per-image masks carried into b1 through a scene's point maps (``mask_ids=`` of segment).
+    read_cloud(path) -> (points, colors, normals); write_segments(out_dir, result, points, source)
+    read_calibration(path) -> (T_b1_w, scale, T_b1_b2 or None)
+CLI: ``bijcr segment CLOUD --out DIR [--masks SCENE]``. See docs/segmentation.md.
+"""
+
+from ._io import read_cloud, write_segments
+from ._masks import MaskViews, read_calibration
+from ._params import SegmentParams
+from ._pipeline import SegmentResult, segment
+from ._summary import ObjectSummary
+from ._table import TablePlane
+
+__all__ = ["segment", "SegmentParams", "SegmentResult", "ObjectSummary", "TablePlane", "MaskViews",
+           "read_cloud", "write_segments", "read_calibration"]

@@ -1,0 +1,25 @@
+"""Kinematics: forward kinematics lives on ``RobotModel`` (bimanual_app.robots); IK lives here.
+
+Public API:
+    IKSolver(robot, link=None, tol_pos=1e-4, tol_rot=1e-3, ...).solve(T_target, q_current=None,
+             position_only=False, n_solutions=1) -> IKResult
+    solve_ik(robot, T_target, q_current=None, **kw) -> IKResult   (caches one IKSolver per robot and link)
+"""
+
+from __future__ import annotations
+
+from bimanual_app.kinematics._ik import IKResult, IKSolver
+
+__all__ = ["IKResult", "IKSolver", "solve_ik"]
+
+_CACHE: dict[tuple[int, str | None], IKSolver] = {}
+
+
+def solve_ik(robot, T_target, q_current=None, link: str | None = None, position_only: bool = False,
+             n_solutions: int = 1) -> IKResult:
+    """IK of ``link`` (default: gripper frame, else ee link) to ``T_target`` (4,4) in the robot's base frame."""
+    key = (id(robot), link)
+    solver = _CACHE.get(key)
+    if solver is None or solver.robot is not robot:
+        solver = _CACHE[key] = IKSolver(robot, link=link)
+    return solver.solve(T_target, q_current=q_current, position_only=position_only, n_solutions=n_solutions)

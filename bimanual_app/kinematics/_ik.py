@@ -1,0 +1,235 @@
+"""Inverse kinematics by damped least squares on a Pinocchio model, with several seeds.
+
+One solve runs Levenberg-Marquardt style damped least squares on the SE(3) log error of the target link
+(Pinocchio: ``computeJointJacobians`` + ``getFrameJacobian`` in the LOCAL frame, ``log6``), a
+full step (1.0, capped in size far from the solution), with joints that sit on a limit and are pushed
+outwards frozen for the step (an active set), and the result clipped to the limits. A seed whose error
+stops shrinking is abandoned early. Seeds, in order: the
+current configuration, then the configurations of a precomputed table of FK samples whose tool poses
+are nearest to the target (scipy cKDTree), then uniform random ones. Every converged, distinct solution
+is kept; they are returned sorted by joint-space distance to the current configuration, so the closest
+comes first. A target beyond the arm's reach (checked against the largest shoulder-to-tool distance of
+the table, with a margin) fails at once without iterating.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bimanual_app.transforms import check_T
+
+__all__ = ["IKResult", "IKSolver"]
+
+
+@dataclass
+class IKResult:
+    """Result of one IK query.
+
+    success: a solution within tolerance was found.
+    q: (J,) the solution closest to the current configuration (None on failure).
+    solutions: (K, J) all distinct solutions found, sorted by distance to the current configuration.
+    pos_error, rot_error: residual of ``q`` (m, rad); of the best attempt when it failed.
+    iterations: DLS iterations over all seeds; seeds: seeds tried.
+    message: why it failed ('' on success).
+    """
+
+    success: bool
+    q: np.ndarray | None
+    solutions: np.ndarray
+    pos_error: float
+    rot_error: float
+    iterations: int
+    seeds: int
+    message: str = ""
+    best_attempt: np.ndarray | None = field(default=None, repr=False)
+
+
+class IKSolver:
+    """Damped-least-squares IK for one link of one robot (default: the gripper frame, else the ee link).
+
+    Args:
+        robot: a ``bimanual_app.robots.RobotModel``.
+        link: target link or frame (default ``robot.tcp_link`` or ``robot.ee_link``).
+        tol_pos, tol_rot: convergence tolerance (m, rad).
+        max_iter: DLS iterations per seed.
+        damping: base damping lambda^2; ``far_damping`` * |error|^2 is added (Levenberg-Marquardt style).
+        max_step: largest joint change per iteration (rad); the step is 1.0 below it.
+        table_size: FK samples used for nearest-pose seeding.
+        opening: gripper opening used for the finger joints (they do not move the target frames).
+    """
+
+    def __init__(self, robot, link: str | None = None, tol_pos: float = 1e-4, tol_rot: float = 1e-3,
+                 max_iter: int = 60, damping: float = 1e-6, far_damping: float = 1e-2, max_step: float = 0.5,
+                 table_size: int = 10000, opening: float = 0.0, seed: int = 0):
+        import pinocchio as pin
+        from scipy.spatial import cKDTree
+
+        self.robot = robot
+        self.link = link or robot.tcp_link or robot.ee_link
+        robot.frame_id(self.link)  # raises for unknown links
+        finger_ids = [robot.model.getJointId(n) for n in robot.finger_joints]
+        q_ref = robot.full_q(robot.neutral(), opening)
+        self.model = pin.buildReducedModel(robot.model, finger_ids, q_ref) if finger_ids else robot.model
+        self.data = self.model.createData()
+        self.fid = self.model.getFrameId(self.link)
+        self.lower, self.upper = robot.lower.copy(), robot.upper.copy()
+        self.tol_pos, self.tol_rot = tol_pos, tol_rot
+        self.max_iter, self.damping = max_iter, damping
+        self.far_damping = far_damping  # lambda^2 += far_damping * |error|^2
+        self.n_near = 12  # nearest-pose seeds from the table, tried after the current configuration
+        self.max_step = max_step  # rad per iteration, largest joint change
+        self._rng = np.random.default_rng(seed)
+        self._pin = pin
+        from scipy.linalg import lapack
+
+        self._dposv = lapack.dposv  # a 6x6 SPD solve: 1 us against np.linalg.solve's 4-6 us
+        self._eye3, self._eye6 = np.eye(3), np.eye(6)
+
+        # nearest-pose seed table, and the arm's reach from the first joint to move the target in space
+        table_q = robot.random_q(table_size, rng=seed)
+        T = robot.fk_link(table_q, self.link, opening=opening)
+        self._table_q = table_q
+        self._table_pos = T[:, :3, 3].copy()
+        self._rot_weight = 0.15  # metres per unit of rotation-matrix difference in the seed metric
+        self._pose_tree = cKDTree(np.concatenate([T[:, :3, 3], self._rot_weight * T[:, :3, :3].reshape(-1, 9)], 1))
+        self._pos_tree = cKDTree(T[:, :3, 3])
+        origins = robot.joint_placements(robot.full_q(robot.neutral()))[0, 1:, :3, 3]
+        # the shoulder: the first joint origin that the target's distance varies about
+        self._shoulder = origins[min(1, len(origins) - 1)]
+        self.reach = float(np.max(np.linalg.norm(self._table_pos - self._shoulder, axis=1)))
+
+    # ------------------------------------------------------------------ one seed
+    def _descend(self, q: np.ndarray, target, position_only: bool) -> tuple[np.ndarray, float, float, int]:
+        """DLS from seed ``q`` (J,); returns (q, position error, rotation error, iterations)."""
+        pin, dposv = self._pin, self._dposv
+        model, data, fid, LOCAL = self.model, self.data, self.fid, pin.LOCAL
+        lower, upper = self.lower, self.upper
+        eye = self._eye3 if position_only else self._eye6
+        tp2, tr2 = self.tol_pos ** 2, self.tol_rot ** 2
+        history: list[float] = []
+        ep2 = er2 = np.inf
+        for it in range(1, self.max_iter + 1):
+            pin.computeJointJacobians(model, data, q)  # forward kinematics and joint Jacobians in one pass
+            cur = pin.updateFramePlacement(model, data, fid)
+            J = pin.getFrameJacobian(model, data, fid, LOCAL)
+            if position_only:
+                e = cur.rotation.T @ (target - cur.translation)  # in the frame's axes, like LOCAL rows 0..2
+                ep2, er2 = float(e @ e), 0.0
+                if ep2 < tp2:
+                    return q, np.sqrt(ep2), 0.0, it
+                Jr = J[:3]
+                ee = ep2
+            else:
+                dM = cur.actInv(target)
+                e = pin.log6(dM).vector
+                t = dM.translation
+                ep2, er2 = float(t @ t), float(e[3:] @ e[3:])
+                if ep2 < tp2 and er2 < tr2:
+                    return q, np.sqrt(ep2), np.sqrt(er2), it
+                # J maps joint rates to the frame's twist; the log's own Jacobian (Jlog6) is the identity at
+                # the solution and changed neither the iteration count nor the success rate in tests, so it
+                # is left out (2 us per iteration)
+                Jr = J
+                ee = float(e @ e)
+            # stagnation: stuck against a limit or in a local minimum -> give up this seed early
+            score = ep2 + 0.01 * er2
+            history.append(score)
+            if it > 15 and score > 0.64 * history[-10]:
+                break
+            lam = self.damping + self.far_damping * ee  # more damping far from the solution
+            _, x, _ = dposv(Jr @ Jr.T + lam * eye, e)
+            dq = Jr.T @ x
+            if ee > 1e-2:  # far from the solution: cap the step (near it the full step is small anyway)
+                n = abs(dq).max()
+                if n > self.max_step:
+                    dq *= self.max_step / n
+            qn = q + dq
+            qc = np.minimum(np.maximum(qn, lower), upper)
+            if (qc != qn).any():
+                # joints already on a limit and pushed outwards are frozen and the step is re-solved with
+                # the others (an active set); the rest are clipped (overshooting joints land on the limit)
+                blocked = ((q <= lower) & (dq < 0)) | ((q >= upper) & (dq > 0))
+                if blocked.any():
+                    Jr = Jr * ~blocked
+                    _, x, _ = dposv(Jr @ Jr.T + lam * eye, e)
+                    dq = Jr.T @ x
+                    n = abs(dq).max()
+                    if n > self.max_step:
+                        dq *= self.max_step / n
+                    qc = np.minimum(np.maximum(q + dq, lower), upper)
+            q = qc
+        return q, float(np.sqrt(ep2)), float(np.sqrt(er2)), it
+
+    # ------------------------------------------------------------------ public
+    def solve(self, T_target: np.ndarray, q_current: np.ndarray | None = None, position_only: bool = False,
+              n_solutions: int = 1, max_seeds: int = 16) -> IKResult:
+        """IK for ``T_target`` (4,4) = pose of ``self.link`` in the robot's base frame.
+
+        ``position_only`` uses only ``T_target[:3, 3]``. Stops after ``n_solutions`` distinct solutions or
+        ``max_seeds`` seeds. Solutions lie within the joint limits.
+        """
+        pin = self._pin
+        T_target = np.asarray(T_target, dtype=np.float64)
+        if T_target.shape != (4, 4) or not np.all(np.isfinite(T_target)):
+            T_target = check_T("T_target", T_target)  # raises with the reason
+        if q_current is None:
+            q_current = self.robot.neutral()
+        q_current = np.asarray(q_current, dtype=np.float64).reshape(-1)
+        if q_current.shape != (self.robot.nq_arm,):
+            raise ValueError(f"q_current: expected shape ({self.robot.nq_arm},), got {q_current.shape}")
+        q_current = np.clip(q_current, self.lower, self.upper)
+        p = T_target[:3, 3]
+        empty = np.zeros((0, self.robot.nq_arm))
+        dist = float(np.linalg.norm(p - self._shoulder))
+        if dist > self.reach * 1.03 + 0.01:
+            return IKResult(False, None, empty, np.inf, np.inf, 0, 0,
+                            f"target {np.round(p, 3).tolist()} is {dist:.3f} m from the shoulder; "
+                            f"the arm reaches about {self.reach:.3f} m")
+        target = pin.SE3(T_target[:3, :3].copy(), p.copy())
+        goal = p if position_only else target
+
+        sols: list[np.ndarray] = []
+        errs: list[tuple[float, float]] = []
+        best = (np.inf, np.inf, None)
+        iters = 0
+        seeds: list[np.ndarray] = [q_current]
+        k = 0
+        while k < max_seeds and len(sols) < n_solutions:
+            if k == len(seeds) == 1:  # nearest-pose seeds, only when the current configuration did not do
+                if position_only:
+                    _, idx = self._pos_tree.query(p, k=self.n_near)
+                else:
+                    _, idx = self._pose_tree.query(
+                        np.concatenate([p, self._rot_weight * T_target[:3, :3].reshape(-1)]), k=self.n_near)
+                seeds += [self._table_q[i] for i in np.atleast_1d(idx)]
+            seed = seeds[k] if k < len(seeds) else self.robot.random_q(1, rng=self._rng)[0]
+            k += 1
+            q, ep, er, it = self._descend(seed.copy(), goal, position_only)
+            iters += it
+            if ep < self.tol_pos and er < self.tol_rot:
+                if not any(np.abs(q - s).max() < 1e-3 for s in sols):
+                    sols.append(q)
+                    errs.append((ep, er))
+            elif ep + 0.1 * er < best[0] + 0.1 * best[1]:
+                best = (ep, er, q)
+        if not sols:
+            return IKResult(False, None, empty, best[0], best[1], iters, k,
+                            f"no IK solution within the joint limits after {k} seeds "
+                            f"(best: {best[0] * 1e3:.1f} mm, {np.degrees(best[1]):.1f} deg off)",
+                            best_attempt=best[2])
+        if len(sols) == 1:
+            return IKResult(True, sols[0], sols[0][None], errs[0][0], errs[0][1], iters, k)
+        order = np.argsort(np.linalg.norm(np.stack(sols) - q_current, axis=1))
+        S = np.stack(sols)[order]
+        return IKResult(True, S[0].copy(), S, errs[order[0]][0], errs[order[0]][1], iters, k)
+
+    def error(self, q: np.ndarray, T_target: np.ndarray, position_only: bool = False) -> tuple[float, float]:
+        """(position error m, rotation error rad) of configuration ``q`` (J,) against ``T_target``."""
+        T = self.robot.fk_link(q, self.link)
+        ep = float(np.linalg.norm(T[:3, 3] - T_target[:3, 3]))
+        if position_only:
+            return ep, 0.0
+        R = T[:3, :3].T @ T_target[:3, :3]
+        return ep, float(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)))

@@ -1,0 +1,293 @@
+"""Collision bodies from the reconstruction: the table plane and each segmented object's shape.
+
+Pure functions on arrays (no PyBullet here): :func:`fit_table` finds the table plane and its extent,
+:func:`shape_from_points` turns one object's points into a convex hull (or an oriented box) expressed in
+a body frame, with a volume and a plausible mass. :mod:`._world` makes PyBullet bodies from these.
+
+Choices:
+- The cameras never see an object's underside, so a hull of the visible points floats above the table.
+  The points are *extruded down to the table plane* (each point's projection on the plane is added)
+  before the hull is taken: the body then stands on the table like the real object does.
+- Stray points (segmentation bleed, depth noise) would inflate a hull; points whose mean distance to
+  their k nearest neighbours is far above the typical value are dropped first (the statistical outlier
+  test of PCL / Open3D, written with scipy's cKDTree to avoid loading Open3D for it).
+- Mass = volume x density (default 400 kg/m^3, between cardboard boxes and wood), clipped to
+  [0.02, 1.5] kg (the Piper's payload is about 1.5 kg).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bimanual_app.transforms import check_shape, make_T
+
+__all__ = ["TablePlane", "BodyShape", "fit_table", "table_from_plane", "shape_from_points", "box_shape",
+           "remove_outliers", "DEFAULT_DENSITY", "MASS_RANGE"]
+
+DEFAULT_DENSITY = 400.0  # kg/m^3
+MASS_RANGE = (0.02, 1.5)  # kg
+
+
+@dataclass
+class TablePlane:
+    """The table top: plane ``n . p + d = 0`` (``n`` pointing up, unit) and a rectangle on it.
+
+    Attributes:
+        normal: (3,) unit normal in b1, pointing away from the table (up).
+        d: plane offset (m).
+        T_b1_t: (4,4) table-top frame: origin at the rectangle's centre on the plane, z = normal.
+        size: (2,) rectangle extent along the frame's x and y (m).
+        thickness: slab thickness below the plane (m).
+    """
+
+    normal: np.ndarray
+    d: float
+    T_b1_t: np.ndarray
+    size: np.ndarray
+    thickness: float = 0.04
+
+    def height(self, p: np.ndarray) -> np.ndarray:
+        """Signed height above the plane of points (..., 3) -> (...)."""
+        return np.asarray(p, dtype=np.float64) @ self.normal + self.d
+
+    def project(self, p: np.ndarray) -> np.ndarray:
+        """Points (..., 3) projected onto the plane."""
+        p = np.asarray(p, dtype=np.float64)
+        return p - self.height(p)[..., None] * self.normal
+
+
+def _frame_from_normal(n: np.ndarray) -> np.ndarray:
+    """(3,3) rotation whose z is ``n`` and whose x is as close to b1's x as possible."""
+    n = n / np.linalg.norm(n)
+    x = np.array([1.0, 0.0, 0.0]) - n[0] * n
+    if np.linalg.norm(x) < 1e-6:
+        x = np.array([0.0, 1.0, 0.0]) - n[1] * n
+    x /= np.linalg.norm(x)
+    return np.stack([x, np.cross(n, x), n], axis=1)
+
+
+def table_from_plane(normal: np.ndarray, d: float, points: np.ndarray | None = None,
+                     margin: float = 0.10, min_size: float = 1.0) -> TablePlane:
+    """A :class:`TablePlane` from a plane (``normal`` (3,), ``d``) and, optionally, the table's points (N,3).
+
+    The rectangle covers the points' 1st..99th percentiles plus ``margin``, at least ``min_size`` square,
+    so the arms never reach past its edge in the preview.
+    """
+    n = np.asarray(normal, dtype=np.float64).reshape(3)
+    s = np.linalg.norm(n)
+    if not np.isfinite(s) or s < 1e-9:
+        raise ValueError("table normal must be a finite non-zero vector")
+    n, d = n / s, float(d) / s
+    if n[2] < 0:  # point up (b1's z is up for a table-top setup)
+        n, d = -n, -d
+    R = _frame_from_normal(n)
+    origin = -d * n
+    if points is not None and len(points) >= 3:
+        p = check_shape("points", np.asarray(points, dtype=np.float64), (None, 3))
+        uv = (p - origin) @ R[:, :2]
+        lo, hi = np.percentile(uv, 1, axis=0) - margin, np.percentile(uv, 99, axis=0) + margin
+        centre = (lo + hi) / 2
+        size = np.maximum(hi - lo, min_size)
+        origin = origin + R[:, :2] @ centre
+    else:
+        size = np.array([min_size, min_size], dtype=np.float64) * 1.5
+    return TablePlane(n, d, make_T(R, origin), np.asarray(size, dtype=np.float64))
+
+
+def fit_table(points: np.ndarray, labels: np.ndarray | None = None, threshold: float = 0.006,
+              iterations: int = 400, seed: int = 0) -> TablePlane:
+    """Fit the table plane to a cloud (N,3) in b1 by RANSAC on the background points (``labels == -1``).
+
+    Only near-horizontal planes (normal within 30 degrees of b1's z) are accepted, so a box side or a wall
+    does not win. The plane is refined by least squares on its inliers.
+
+    Raises:
+        ValueError: fewer than 50 background points, or no near-horizontal plane.
+    """
+    p = check_shape("points", np.asarray(points, dtype=np.float64), (None, 3))
+    if labels is not None:
+        labels = check_shape("labels", np.asarray(labels), (len(p),))
+        p = p[labels < 0]
+    p = p[np.all(np.isfinite(p), axis=1)]
+    if len(p) < 50:
+        raise ValueError(f"only {len(p)} table/background points: cannot fit the table plane")
+    rng = np.random.default_rng(seed)
+    sub = p if len(p) <= 20000 else p[rng.choice(len(p), 20000, replace=False)]
+    best, best_count = None, -1
+    # Hand-written RANSAC (vectorised over hypotheses): Open3D's segment_plane cannot restrict the
+    # normal's direction, and a large box top would otherwise win on cluttered tables.
+    idx = rng.integers(0, len(sub), size=(iterations, 3))
+    a, b, c = sub[idx[:, 0]], sub[idx[:, 1]], sub[idx[:, 2]]
+    nrm = np.cross(b - a, c - a)
+    ln = np.linalg.norm(nrm, axis=1)
+    ok = ln > 1e-9
+    nrm[ok] /= ln[ok, None]
+    ok &= np.abs(nrm[:, 2]) > np.cos(np.radians(30))
+    for k in np.flatnonzero(ok):
+        dist = np.abs((sub - a[k]) @ nrm[k])
+        count = int(np.count_nonzero(dist < threshold))
+        if count > best_count:
+            best, best_count = (nrm[k], -float(a[k] @ nrm[k])), count
+    if best is None:
+        raise ValueError("no near-horizontal plane found in the background points")
+    n, d = best
+    inl = p[np.abs(p @ n + d) < threshold]
+    centre = inl.mean(axis=0)
+    _, _, vt = np.linalg.svd(inl - centre, full_matrices=False)
+    n = vt[2] * np.sign(vt[2][2] if vt[2][2] != 0 else 1.0)
+    return table_from_plane(n, -float(n @ centre), inl)
+
+
+@dataclass
+class BodyShape:
+    """One object's collision shape in its own body frame ``o``.
+
+    Attributes:
+        T_b1_o: (4,4) body frame in b1 (origin at the shape's centroid; z along the table normal).
+        kind: ``"hull"``, ``"box"``, ``"cylinder"`` or ``"sphere"``.
+        vertices: (V,3) hull vertices in ``o`` (hull), else None.
+        faces: (F,3) int triangles of the hull (outward), else None.
+        size: (3,) extent along o's axes (box: edge lengths; cylinder: 2r, 2r, height; sphere: 2r x3).
+        volume: m^3.
+        mass: kg.
+    """
+
+    T_b1_o: np.ndarray
+    kind: str
+    size: np.ndarray
+    volume: float
+    mass: float
+    vertices: np.ndarray | None = None
+    faces: np.ndarray | None = None
+
+
+def remove_outliers(points: np.ndarray, k: int = 8, std_ratio: float = 2.5) -> np.ndarray:
+    """Points (N,3) without statistical outliers (mean k-NN distance above mean + std_ratio x std)."""
+    from scipy.spatial import cKDTree
+
+    p = check_shape("points", np.asarray(points, dtype=np.float64), (None, 3))
+    if len(p) <= k + 1:
+        return p
+    dist, _ = cKDTree(p).query(p, k=k + 1)
+    m = dist[:, 1:].mean(axis=1)
+    keep = m <= m.mean() + std_ratio * m.std()
+    return p[keep]
+
+
+def _mass(volume: float, density: float) -> float:
+    return float(np.clip(volume * density, *MASS_RANGE))
+
+
+def shape_from_points(points: np.ndarray, table: TablePlane | None = None, kind: str = "hull",
+                      density: float = DEFAULT_DENSITY, max_points: int = 4000, seed: int = 0) -> BodyShape:
+    """A collision shape for one segmented object from its points (N,3) in b1.
+
+    Args:
+        points: (N,3) the object's points (N >= 10).
+        table: when given, the points are extruded down to the table plane first (see module notes).
+        kind: ``"hull"`` (convex hull, scipy/Qhull) or ``"box"`` (box aligned with the table normal, yaw
+            from the minimum-area rectangle of the footprint, via trimesh).
+        density: kg/m^3 for the mass.
+    Raises:
+        ValueError: too few points, or a degenerate (flat) set.
+    """
+    from scipy.spatial import ConvexHull, QhullError
+
+    p = check_shape("points", np.asarray(points, dtype=np.float64), (None, 3))
+    p = p[np.all(np.isfinite(p), axis=1)]
+    if len(p) < 10:
+        raise ValueError(f"an object needs at least 10 points for a collision body, got {len(p)}")
+    if len(p) > max_points:
+        p = p[np.random.default_rng(seed).choice(len(p), max_points, replace=False)]
+    p = remove_outliers(p)
+    up = np.array([0.0, 0.0, 1.0]) if table is None else table.normal
+    if table is not None:
+        h = table.height(p)
+        p = p[h > -0.01]  # points below the table top are noise
+        if len(p) < 10:
+            raise ValueError("the object's points lie below the table plane")
+        p = np.concatenate([p, table.project(p) + 0.0005 * table.normal])
+    if kind == "box":
+        return box_shape_from_points(p, up, density)
+    if kind != "hull":
+        raise ValueError(f"kind must be 'hull' or 'box', got {kind!r}")
+    try:
+        hull = ConvexHull(p)
+    except QhullError as e:
+        raise ValueError(f"the object's points are degenerate (flat or collinear): {e}") from None
+    verts = p[hull.vertices]
+    R = _frame_from_normal(up)
+    # body frame: yaw of the footprint's principal axis, origin at the hull's centroid (of volume)
+    uv = (verts - verts.mean(0)) @ R[:, :2]
+    if len(uv) >= 2:
+        w, v = np.linalg.eigh(np.cov(uv.T))
+        ax = v[:, np.argmax(w)]
+        c, s = ax
+        R = R @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+    centroid = _hull_centroid(p[hull.vertices], hull)
+    T = make_T(R, centroid)
+    local = (verts - centroid) @ R
+    # faces re-indexed onto the kept vertices, oriented outward
+    remap = {int(v): i for i, v in enumerate(hull.vertices)}
+    faces = np.array([[remap[int(a)] for a in f] for f in hull.simplices], dtype=np.int64)
+    ctr = local.mean(0)
+    for i, f in enumerate(faces):
+        a, b, c = local[f]
+        if np.dot(np.cross(b - a, c - a), a - ctr) < 0:
+            faces[i] = f[[0, 2, 1]]
+    size = local.max(0) - local.min(0)
+    return BodyShape(T, "hull", size, float(hull.volume), _mass(float(hull.volume), density), local, faces)
+
+
+def _hull_centroid(points: np.ndarray, hull) -> np.ndarray:
+    """Volume centroid of a convex hull (sum of tetrahedra from an interior point)."""
+    o = hull.points[hull.vertices].mean(0)
+    tri = hull.points[hull.simplices]
+    vol = np.abs(np.einsum("ij,ij->i", tri[:, 0] - o, np.cross(tri[:, 1] - o, tri[:, 2] - o))) / 6.0
+    if vol.sum() <= 0:
+        return o
+    cent = (tri.sum(axis=1) + o) / 4.0
+    return (vol[:, None] * cent).sum(0) / vol.sum()
+
+
+def box_shape_from_points(points: np.ndarray, up: np.ndarray, density: float = DEFAULT_DENSITY) -> BodyShape:
+    """A box (z along ``up``) around points (N,3): footprint from trimesh's minimum-area rectangle."""
+    import trimesh
+
+    R0 = _frame_from_normal(np.asarray(up, dtype=np.float64))
+    local = points @ R0
+    T2, ext = trimesh.bounds.oriented_bounds_2D(local[:, :2])
+    # T2 maps footprint points into the rectangle's centred frame
+    A = np.linalg.inv(T2)
+    c2 = A[:2, 2]
+    ax = A[:2, 0] / np.linalg.norm(A[:2, 0])
+    Rz = np.array([[ax[0], -ax[1], 0], [ax[1], ax[0], 0], [0, 0, 1.0]])
+    zlo, zhi = local[:, 2].min(), local[:, 2].max()
+    R = R0 @ Rz
+    centre = R0 @ np.array([c2[0], c2[1], (zlo + zhi) / 2])
+    size = np.array([ext[0], ext[1], zhi - zlo], dtype=np.float64)
+    size = np.maximum(size, 0.005)
+    vol = float(np.prod(size))
+    return BodyShape(make_T(R, centre), "box", size, vol, _mass(vol, density))
+
+
+def box_shape(T_b1_o: np.ndarray, size: np.ndarray, mass: float | None = None, kind: str = "box",
+              density: float = DEFAULT_DENSITY) -> BodyShape:
+    """A primitive shape with a known pose (ground-truth objects).
+
+    ``kind`` is ``box`` (size = edges), ``cylinder`` (size = (2r, 2r, height), axis = o's z) or
+    ``sphere`` (size = (2r, 2r, 2r)).
+    """
+    size = np.asarray(size, dtype=np.float64).reshape(3)
+    if kind == "box":
+        vol = float(np.prod(size))
+    elif kind == "cylinder":
+        vol = float(np.pi * (size[0] / 2) ** 2 * size[2])
+    elif kind == "sphere":
+        vol = float(4 / 3 * np.pi * (size[0] / 2) ** 3)
+    else:
+        raise ValueError(f"unknown primitive kind {kind!r} (box, cylinder, sphere)")
+    m = float(mass) if mass is not None else _mass(vol, density)
+    return BodyShape(np.asarray(T_b1_o, dtype=np.float64), kind, size, vol, m)

@@ -1,0 +1,109 @@
+"""Frames of the preview: TinyRenderer images at a fixed rate -> animated GIF, plus named key frames (PNG)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from bimanual_app.io_utils import atomic_path
+
+__all__ = ["Recorder", "default_camera"]
+
+
+def default_camera(T_b1_b2: np.ndarray, focus: np.ndarray | None = None) -> dict:
+    """A side view of the workspace: looking at the point between the bases (or ``focus`` (3,)),
+    from the side of the line joining the two bases, 1.3 m away, 30 degrees down."""
+    b2 = np.asarray(T_b1_b2, dtype=np.float64)[:3, 3]
+    mid = b2 / 2 if focus is None else 0.5 * (b2 / 2) + 0.5 * np.asarray(focus, dtype=np.float64)
+    target = [float(mid[0]), float(mid[1]), 0.15]
+    d = b2[:2] if np.linalg.norm(b2[:2]) > 1e-6 else np.array([1.0, 0.0])
+    yaw = float(np.degrees(np.arctan2(d[1], d[0])))  # camera looks across the base line
+    return {"target": target, "distance": max(1.1, 1.4 * float(np.linalg.norm(b2[:2]))), "yaw": yaw, "pitch": -30.0}
+
+
+class Recorder:
+    """Captures frames every ``1/fps`` s of simulated time and key frames on request.
+
+    Args:
+        width, height: image size in pixels.
+        fps: animation frame rate (simulated time); the GIF plays in real time.
+        camera: dict with ``target`` (3,), ``distance``, ``yaw``, ``pitch`` (degrees); default from the world.
+        max_frames: frames beyond this are dropped evenly (keeps GIFs small for long tasks).
+    """
+
+    def __init__(self, width: int = 360, height: int = 270, fps: float = 10.0, camera: dict | None = None,
+                 max_frames: int = 400):
+        self.width, self.height, self.fps = int(width), int(height), float(fps)
+        self.camera = camera
+        self.max_frames = int(max_frames)
+        self.frames: list[np.ndarray] = []
+        self.keyframes: list[tuple[str, np.ndarray]] = []
+        self._next = 0.0
+        self._world = None
+        self._view = self._proj = None
+
+    def attach(self, world) -> None:
+        self._world = world
+        if self.camera is None:
+            self.camera = default_camera(world.T_b1_b2)
+        self._matrices()
+
+    def _matrices(self) -> None:
+        p = self._world.p
+        c = self.camera
+        self._view = p.computeViewMatrixFromYawPitchRoll(c["target"], c["distance"], c["yaw"], c["pitch"], 0.0, 2)
+        self._proj = p.computeProjectionMatrixFOV(45.0, self.width / self.height, 0.05, 6.0)
+
+    def render(self) -> np.ndarray:
+        """(H, W, 3) uint8 image of the world now."""
+        w = self._world
+        img = w.p.getCameraImage(self.width, self.height, self._view, self._proj, renderer=w.p.ER_TINY_RENDERER,
+                                 shadow=0, lightDirection=[0.4, -0.6, 1.0], physicsClientId=w.cid)
+        rgba = np.reshape(np.asarray(img[2], dtype=np.uint8), (self.height, self.width, 4))
+        return rgba[:, :, :3].copy()
+
+    def on_step(self, world) -> None:
+        if world.time + 1e-9 >= self._next:
+            self.frames.append(self.render())
+            self._next = world.time + 1.0 / self.fps
+
+    def keyframe(self, name: str) -> np.ndarray:
+        """Render now and keep the image as key frame ``name`` (also added to the animation)."""
+        im = self.render()
+        self.keyframes.append((name, im))
+        return im
+
+    def _frames_for_gif(self) -> list[np.ndarray]:
+        f = self.frames
+        if len(f) > self.max_frames:
+            idx = np.linspace(0, len(f) - 1, self.max_frames).round().astype(int)
+            f = [f[i] for i in idx]
+        return f
+
+    def save_gif(self, path: str | Path) -> Path:
+        """Write the animation (atomic). Raises ValueError when no frame was captured."""
+        import imageio.v2 as imageio
+
+        frames = self._frames_for_gif()
+        if not frames:
+            raise ValueError("no frames were recorded")
+        step = max(1, int(np.ceil(len(self.frames) / max(len(frames), 1))))
+        duration = step / self.fps  # seconds per frame, so the GIF plays in real time
+        path = Path(path)
+        with atomic_path(path) as tmp:
+            imageio.mimsave(tmp, frames, format="GIF", duration=duration, loop=0)
+        return path
+
+    def save_keyframes(self, folder: str | Path, prefix: str = "") -> list[Path]:
+        """Write each key frame as ``folder/{prefix}{k:02d}_{name}.png`` (atomic); returns the paths."""
+        import imageio.v2 as imageio
+
+        out = []
+        for k, (name, im) in enumerate(self.keyframes):
+            safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in name)
+            path = Path(folder) / f"{prefix}{k:02d}_{safe}.png"
+            with atomic_path(path) as tmp:
+                imageio.imwrite(tmp, im, format="PNG")
+            out.append(path)
+        return out

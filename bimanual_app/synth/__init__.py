@@ -1,0 +1,15 @@
+"""Synthetic captures: a PyBullet table-top scene, two Piper arms with wrist cameras, a foundation-model emulator.
+
+Public API:
+    make_synthetic_scene(out_dir, seed=0, views=8, objects=5, noise="paper", outliers=0.0, render=True,
+                         touching=0.5, ...) -> Path
+    ground_truth_cloud(scene_path, ...) -> (points_b1 (N, 3) float64, colors (N, 3) uint8, labels (N,) int32)
+    NOISE_LEVELS: the emulator's noise levels (name -> NoiseLevel(rot_deg, trans_m, depth_rel)).
+See docs/synth.md.
+"""
+
+from ._emulator import NOISE_LEVELS, NoiseLevel
+from ._generate import make_synthetic_scene
+from ._gtcloud import ground_truth_cloud
+
+__all__ = ["make_synthetic_scene", "ground_truth_cloud", "NOISE_LEVELS", "NoiseLevel"]

@@ -1,0 +1,320 @@
+"""make_synthetic_scene: build, capture, emulate and write one synthetic scene folder.
+
+The folder is assembled under a hidden temporary name beside ``out_dir`` and renamed into place at the
+end, so an interrupted run never leaves something that looks like a complete scene.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from bimanual_app.io_utils import InputError, Problem
+from bimanual_app.scene import ArmCapture, CameraIntrinsics, GroundTruth, Reconstruction, Scene, write_scene
+from bimanual_app.transforms import rotation_angle_between
+
+from ._camera import look_at
+from ._emulator import NOISE_LEVELS, perturb_poses, point_map, random_frame, to_frame_w
+from ._layout import place_objects, sample_base_pose, sample_hand_eye, touching_pairs
+from ._objects import choose_kinds, sample_spec
+from ._preview import save_preview
+from ._viewpoints import plan_views
+
+GENERATOR = "bijcr synth 1"
+DEPTH_UNITS_M = 1e-4  # ground-truth depth PNGs: uint16 in 0.1 mm (0 = no table/object surface)
+ARMS = ("primary", "secondary")
+# stream names of the seed's independent random generators: changing one stage never shifts another
+_STREAMS = ("base", "hand_eye", "textures", "objects", "views1", "views2", "poses", "frame", "depth", "outliers")
+
+
+class _Log:
+    """Progress on stderr: a rich progress bar for the rendering, one line per stage otherwise."""
+
+    def __init__(self, enabled: bool):
+        self.enabled = enabled
+        self.t0 = time.perf_counter()
+        self.console = None
+        if enabled:
+            from rich.console import Console
+
+            self.console = Console(stderr=True)
+
+    def __call__(self, msg: str) -> None:
+        if self.enabled:
+            self.console.print(f"[dim]{time.perf_counter() - self.t0:6.1f} s[/dim]  synth: {msg}", highlight=False)
+
+    @contextmanager
+    def bar(self, label: str, total: int):
+        if not self.enabled:
+            yield lambda: None
+            return
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                      console=self.console, transient=False) as prog:
+            task = prog.add_task(label, total=total)
+            yield lambda: prog.advance(task)
+
+
+def _check_args(out: Path, views, objects, noise, outliers, touching, overwrite, pointmap_size, image_size) -> None:
+    probs = []
+
+    def bad(field, msg, fix):
+        probs.append(Problem("bijcr synth", field, msg, fix))
+
+    if not isinstance(views, (int, np.integer)) or not 3 <= views <= 40:
+        bad("views", f"views per arm must be an integer in 3..40, got {views!r}", "hand-eye calibration needs >= 3 views")
+    if not isinstance(objects, (int, np.integer)) or not 1 <= objects <= 10:
+        bad("objects", f"objects must be an integer in 1..10, got {objects!r}", "the table holds at most 10")
+    if noise not in NOISE_LEVELS:
+        bad("noise", f"unknown noise level {noise!r}", f"use one of {', '.join(NOISE_LEVELS)}")
+    if not 0.0 <= float(outliers) <= 0.5:
+        bad("outliers", f"outlier fraction must be in [0, 0.5], got {outliers!r}", "e.g. --outliers 0.2")
+    if not 0.0 <= float(touching) <= 1.0:
+        bad("touching", f"touching fraction must be in [0, 1], got {touching!r}", "e.g. --touching 0.5")
+    W, H = image_size
+    w, h = pointmap_size
+    if w <= 0 or h <= 0 or W % w or H % h:
+        bad("pointmap_size", f"point-map size {w}x{h} must divide the image size {W}x{H}", "e.g. 160x120 for 640x480")
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        if not overwrite:
+            bad("OUT", f"{out} exists and is not empty", "choose a new folder, or pass --overwrite to replace a"
+                " folder made by bijcr synth")
+        elif not _is_synth_scene(out):
+            bad("OUT", f"{out} was not made by bijcr synth: refusing to replace it", "choose a new folder")
+    if probs:
+        raise InputError(probs)
+
+
+def _is_synth_scene(path: Path) -> bool:
+    gt = path / "ground_truth.yaml"
+    if not path.is_dir() or not gt.is_file():
+        return False
+    try:
+        data = yaml.safe_load(gt.read_text())
+    except yaml.YAMLError:
+        return False
+    return isinstance(data, dict) and isinstance(data.get("synthetic"), dict)
+
+
+def _save_png(path: Path, arr: np.ndarray) -> None:
+    from PIL import Image
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(arr).save(path, format="PNG", compress_level=6)
+
+
+def _choose_outliers(rng: np.random.Generator, n: int, fraction: float) -> np.ndarray:
+    """(n,) bool: round(fraction * n) views (at least one when fraction > 0), never the first view."""
+    k = int(round(fraction * n))
+    if fraction > 0:
+        k = max(k, 1)
+    out = np.zeros(n, dtype=bool)
+    if k:
+        out[1 + rng.choice(n - 1, size=min(k, n - 1), replace=False)] = True
+    return out
+
+
+def make_synthetic_scene(out_dir: str | os.PathLike, seed: int = 0, views: int = 8, objects: int = 5,
+                         noise: str = "paper", outliers: float = 0.0, render: bool = True, touching: float = 0.5,
+                         *, image_size: tuple[int, int] = (640, 480), focal: float = 420.0,
+                         pointmap_size: tuple[int, int] = (160, 120), depth_stride: int = 2,
+                         as_joints: bool = False, name: str | None = None, overwrite: bool = False,
+                         progress: bool = True, preview: bool = True) -> Path:
+    """Generate a synthetic scene folder (docs/synth.md) and return its path.
+
+    Args:
+        out_dir: the scene folder to create (must not exist or be empty; ``overwrite`` replaces a folder
+            that bijcr synth made, never anything else).
+        seed: everything (layout, mounts, viewpoints, noise, frame) follows from it.
+        views: viewpoints per arm (3..40).
+        objects: objects on the table (1..10): a large box, a small box, a cylinder, a mesh, then a mix.
+        noise: emulator noise level, one of ``none``, ``low``, ``paper``, ``harsh``.
+        outliers: fraction of each arm's views that get a gross pose error (0..0.5).
+        render: False skips images, masks, depth and point maps (poses-only reconstruction; fast).
+        touching: fraction of the objects placed in contact with a neighbour.
+        image_size, focal: the wrist cameras (width, height) and focal length in pixels (principal
+            point at the image centre).
+        pointmap_size: (w, h) of the emulated point maps; must divide ``image_size``.
+        depth_stride: ground-truth depth PNGs keep every ``depth_stride``-th pixel in x and y.
+        as_joints: write ee_poses.csv as joint angles j1..j6 instead of poses.
+        name: scene name (default: the folder name).
+        progress: log stages and a progress bar on stderr.
+        preview: write preview.png.
+    """
+    out = Path(out_dir).expanduser().absolute()
+    _check_args(out, views, objects, noise, outliers, touching, overwrite, pointmap_size, image_size)
+    log = _Log(progress)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(stage, 0o777 & ~umask)  # mkdtemp makes it private; the scene is an ordinary folder
+    try:
+        _generate(stage, out.name if name is None else name, int(seed), int(views), int(objects), NOISE_LEVELS[noise],
+                  float(outliers), bool(render), float(touching), tuple(image_size), float(focal),
+                  tuple(pointmap_size), int(depth_stride), bool(as_joints), bool(preview), log)
+        if out.exists():
+            old = out.parent / f".{out.name}.old-{os.getpid()}"
+            os.replace(out, old)
+            os.replace(stage, out)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(stage, out)
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
+    log(f"wrote {out}")
+    return out
+
+
+def _generate(root: Path, name: str, seed: int, n_views: int, n_objects: int, level, outlier_frac: float,
+              render: bool, touching: float, image_size, focal: float, pm_size, depth_stride: int,
+              as_joints: bool, preview: bool, log: _Log) -> None:
+    from bimanual_app.robots import load_robot
+
+    from ._world import SynthWorld
+
+    rngs = dict(zip(_STREAMS, (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(len(_STREAMS)))))
+    robot = load_robot("piper")
+    W, H = image_size
+    cam = CameraIntrinsics(W, H, focal, focal, (W - 1) / 2, (H - 1) / 2)
+    K = cam.K
+    T_b1_b2 = sample_base_pose(rngs["base"])
+    T_e_c = [sample_hand_eye(rngs["hand_eye"]), sample_hand_eye(rngs["hand_eye"])]
+    T_b1_b = [np.eye(4), T_b1_b2]
+    log(f"seed {seed}: bases {np.linalg.norm(T_b1_b2[:3, 3]):.3f} m apart, {n_objects} objects, {n_views} views per arm")
+
+    with SynthWorld(robot, T_b1_b2, rngs["textures"]) as world:
+        for a in range(2):
+            world.set_hand_eye(a, T_e_c[a])
+        specs = [sample_spec(k, rngs["objects"]) for k in choose_kinds(n_objects, rngs["objects"])]
+        T_b1_o = place_objects(world, specs, rngs["objects"], touching=touching)
+        pairs = touching_pairs(world, world.object_ids)
+        log(f"placed {', '.join(s.kind for s in specs)}; touching pairs {pairs}")
+        centre = np.mean([T[:3, 3] for T in T_b1_o], axis=0)
+        centre[2] = 0.0
+        plans, vstats = [], []
+        for a in range(2):
+            v, st = plan_views(world, a, n_views, rngs[("views1", "views2")[a]], centre, K=K, image_size=image_size)
+            plans.append(v)
+            vstats.append(st)
+            log(f"{ARMS[a]}: {st['visible']} feasible viewpoints of {st['candidates']} tried, chose {n_views}"
+                f" (smallest rotation between two: {st['min_pair_rotation_deg']:.1f} deg)")
+
+        # ---- emulator poses (independent of rendering: same numbers with render=False)
+        T_b1_c_true = [np.array([T_b1_b[a] @ v.T_b_e @ T_e_c[a] for v in plans[a]]) for a in range(2)]
+        is_out = [_choose_outliers(rngs["outliers"], n_views, outlier_frac) for _ in range(2)]
+        reported, rot_err, trans_err = [], [], []
+        for a in range(2):
+            Tr, re, te = perturb_poses(T_b1_c_true[a], level, is_out[a], rngs["poses"])
+            reported.append(Tr)
+            rot_err.append(re)
+            trans_err.append(te)
+        T_w_b1, scale = random_frame(rngs["frame"])
+        T_w_c = [to_frame_w(reported[a], T_w_b1, scale) for a in range(2)]
+        keys = [f"images/{i:03d}.png" for i in range(n_views)]
+
+        pts_all, conf_all, col_all, thumbs = [], [], [], []
+        if render:
+            static = set(world.static_ids) | set(world.object_ids)
+            with log.bar("rendering", 2 * n_views) as step:
+                for a in range(2):
+                    world.set_arm(1 - a, world.q_park)
+                    thumbs.append([])
+                    for i, v in enumerate(plans[a]):
+                        world.set_arm(a, v.q)
+                        rgb, depth, seg = world.render(T_b1_c_true[a][i], K, W, H)
+                        mask = np.zeros((H, W), np.uint8)
+                        for k, body in enumerate(world.object_ids):
+                            mask[seg == body] = k + 1
+                        gt_depth = np.where(np.isin(seg, list(static)) & np.isfinite(depth), depth, 0.0)
+                        gt_depth = gt_depth[::depth_stride, ::depth_stride]
+                        gt_q = np.round(gt_depth / DEPTH_UNITS_M)
+                        gt_q[gt_q > 65535] = 0
+                        arm_dir = root / ARMS[a]
+                        _save_png(arm_dir / keys[i], rgb)
+                        _save_png(arm_dir / "masks" / f"{i:03d}.png", mask)
+                        _save_png(arm_dir / "depth" / f"{i:03d}.png", gt_q.astype(np.uint16))
+                        p3, cf, co = point_map(depth, rgb, K, T_w_c[a][i], scale, pm_size, level.depth_rel,
+                                               rngs["depth"])
+                        pts_all.append(p3)
+                        conf_all.append(cf)
+                        col_all.append(co)
+                        thumbs[a].append(rgb[::4, ::4])
+                        step()
+                    world.set_arm(a, world.q_park)
+
+        # ---- overview picture: both arms parked, seen from the side of the table
+        overview = None
+        if preview:
+            for a in range(2):
+                world.set_arm(a, world.q_park)
+            across = np.array([-T_b1_b2[1, 3], T_b1_b2[0, 3], 0.0])
+            across /= np.linalg.norm(across)
+            mid = 0.5 * T_b1_b2[:3, 3] * np.array([1, 1, 0])
+            T_b1_ov = look_at(mid - 0.75 * across + np.array([0.0, 0.0, 0.7]), mid + np.array([0, 0, 0.12]))
+            K_ov = np.array([[520.0, 0.0, 399.5], [0.0, 520.0, 299.5], [0.0, 0.0, 1.0]])
+            overview = (world.render(T_b1_ov, K_ov, 800, 600)[0], K_ov, T_b1_ov)
+        park = world.q_park.copy()
+        table = world.table
+
+    # ---- ground truth and the scene files
+    objs = []
+    for k, (spec, T) in enumerate(zip(specs, T_b1_o)):
+        objs.append({
+            "id": k, "name": f"{spec.kind}_{k}", "kind": spec.kind, "shape": spec.shape, "mask_label": k + 1,
+            "T_b1_o": T, "size": spec.size.round(6), "mass": spec.mass,
+            "fits_gripper": spec.fits_gripper, "needs_two_hands": spec.needs_two_hands,
+            "touching": sorted({j for p in pairs for j in p if k in p} - {k}),
+        })
+    arms = []
+    for a in range(2):
+        arms.append(ArmCapture(ARMS[a], list(keys), np.array([v.T_b_e for v in plans[a]]),
+                               np.array([v.q for v in plans[a]])))
+    extras = {
+        "T_w_b1": T_w_b1,
+        "synthetic": {
+            "generator": GENERATOR, "seed": seed, "views": n_views, "objects": n_objects, "noise": level.name,
+            "outliers": outlier_frac, "touching": touching, "render": render,
+            "image_size": list(image_size), "pointmap_size": list(pm_size) if render else None,
+            "depth": {"folder": "depth", "stride": depth_stride, "units_m": DEPTH_UNITS_M,
+                      "meaning": "uint16 z-depth of table and object surfaces at image pixels (stride*i, stride*j);"
+                                 " 0 where the ray hits a robot, a camera or nothing"} if render else None,
+            "park_q": park,
+        },
+        "noise": {"level": level.name, "rot_rms_deg": level.rot_deg, "trans_rms_m": level.trans_m,
+                  "depth_rel_sigma": level.depth_rel},
+        "pose_errors": {ARMS[a]: {"rot_deg": np.rad2deg(rot_err[a]).round(4), "trans_m": trans_err[a].round(6)}
+                        for a in range(2)},
+        "outlier_views": {ARMS[a]: [keys[i] for i in np.flatnonzero(is_out[a])] for a in range(2)},
+        "viewpoints": {ARMS[a]: {k: (round(v, 3) if isinstance(v, float) else v) for k, v in vstats[a].items()}
+                       for a in range(2)},
+        "table": {"T_b1_t": table.T_b1_t, "size": table.size},
+    }
+    gt = GroundTruth(T_e_c[0], T_e_c[1], T_b1_b2, scale, objs, extras)
+    M = 2 * n_views
+    rec = Reconstruction(
+        arm=np.repeat([1, 2], n_views), image=np.array(keys + keys), T_w_c=np.concatenate(T_w_c),
+        pts3d=np.stack(pts_all) if render else None, conf=np.stack(conf_all) if render else None,
+        model="synthetic", colors=np.stack(col_all) if render else None)
+    assert len(rec) == M
+    scene = Scene(root, name, arms[0], arms[1], robot="piper", ee_link=robot.ee_link, camera=cam,
+                  reconstruction=rec, ground_truth=gt)
+    write_scene(scene, root, as_joints=as_joints)
+    if preview:
+        ov, K_ov, T_b1_ov = overview
+        title = (f"{name}: seed {seed}, {n_views} views per arm, noise {level.name}, outliers {outlier_frac:g}"
+                 f" - bases {np.linalg.norm(T_b1_b2[:3, 3]):.2f} m apart")
+        save_preview(root / "preview.png", ov, K_ov, T_b1_ov, T_b1_c_true, K, image_size, objs,
+                     thumbs if render else None, is_out, title)
+    min_rot = [float(np.rad2deg(rotation_angle_between(T[:, None, :3, :3], T[None, :, :3, :3])[~np.eye(len(T), dtype=bool)].min()))
+               for T in T_b1_c_true]
+    log(f"smallest rotation between views: primary {min_rot[0]:.1f} deg, secondary {min_rot[1]:.1f} deg")

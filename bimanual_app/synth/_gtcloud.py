@@ -1,0 +1,83 @@
+"""The true metric point cloud of a synthetic scene, in b1, with per-point object labels.
+
+Recomputed from what the generator stored for evaluation: the ground-truth depth PNGs (table and
+object surfaces only), the masks, the images, the ee poses and the true hand-eye and base transforms.
+Nothing here reads reconstruction.npz (whose point maps are perturbed on purpose).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from bimanual_app.io_utils import InputError, Problem
+
+
+def _read(path: Path) -> np.ndarray:
+    from PIL import Image
+
+    if not path.is_file():
+        raise InputError(Problem(str(path), "", "file is missing", "re-generate the scene with bijcr synth"))
+    return np.asarray(Image.open(path))
+
+
+def ground_truth_cloud(scene_path: str | Path, stride: int = 1, max_depth: float | None = None,
+                       voxel: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """True cloud of a rendered synthetic scene.
+
+    Args:
+        scene_path: a folder made by ``bijcr synth`` (with rendering).
+        stride: keep every ``stride``-th pixel of the stored depth maps (which already keep every
+            ``synthetic.depth.stride``-th image pixel).
+        max_depth: drop points farther than this from their camera (m); None keeps all.
+        voxel: if given, keep one point per cube of this edge (m), the first seen.
+    Returns:
+        ``points_b1`` (N, 3) float64 metres in b1, ``colors`` (N, 3) uint8 (from the images), ``labels``
+        (N,) int32: object id k (ground_truth.yaml ``objects``), -1 for the table and the floor. Robots
+        and cameras are not part of it.
+    """
+    from bimanual_app.scene import load_scene
+
+    scene = load_scene(scene_path)
+    gt = scene.ground_truth
+    meta = (gt.extras.get("synthetic") if gt is not None else None) or {}
+    depth_info = meta.get("depth")
+    if not depth_info or scene.camera is None:
+        raise InputError(Problem(str(scene.path / "ground_truth.yaml"), "synthetic.depth",
+                                 "no ground-truth depth: not a rendered synthetic scene",
+                                 "generate it with bijcr synth (without --no-render)"))
+    s = int(depth_info["stride"])
+    units = float(depth_info["units_m"])
+    folder = str(depth_info.get("folder", "depth"))
+    K = scene.camera.K
+    T_b1_b = [np.eye(4), gt.T_b1_b2]
+    T_e_c = [gt.T_e1_c1, gt.T_e2_c2]
+    pts, cols, labs = [], [], []
+    for a, arm in enumerate(scene.arms):
+        for i, key in enumerate(arm.images):
+            stem = Path(key).stem
+            depth = _read(scene.path / arm.name / folder / f"{stem}.png").astype(np.float64) * units
+            mask = _read(scene.path / arm.name / "masks" / f"{stem}.png")
+            rgb = _read(scene.path / arm.name / key)[..., :3]
+            h, w = depth.shape
+            vv, uu = np.mgrid[0:h:stride, 0:w:stride]
+            z = depth[vv, uu]
+            ok = z > 0
+            if max_depth is not None:
+                ok &= z <= max_depth
+            u_img, v_img = uu[ok] * s, vv[ok] * s
+            z = z[ok]
+            P_c = np.stack([(u_img - K[0, 2]) / K[0, 0] * z, (v_img - K[1, 2]) / K[1, 1] * z, z], axis=1)
+            T_b1_c = T_b1_b[a] @ arm.T_b_e[i] @ T_e_c[a]
+            pts.append(P_c @ T_b1_c[:3, :3].T + T_b1_c[:3, 3])
+            cols.append(rgb[v_img, u_img])
+            labs.append(mask[v_img, u_img].astype(np.int32) - 1)
+    P = np.concatenate(pts)
+    C = np.concatenate(cols).astype(np.uint8)
+    L = np.concatenate(labs).astype(np.int32)
+    if voxel is not None and len(P):
+        _, first = np.unique(np.floor(P / voxel).astype(np.int64), axis=0, return_index=True)
+        first = np.sort(first)
+        P, C, L = P[first], C[first], L[first]
+    return P, C, L

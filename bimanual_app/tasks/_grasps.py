@@ -1,0 +1,188 @@
+"""Grasp choices a task plans with, read from grasps.json (``bijcr grasp``), and the choice of object.
+
+:class:`GraspSpec` is one arm's grasp as the task uses it: the gripper pose in b1 when the fingers meet
+the object (``T_b1_g``, contract gripper frame g), the opening while approaching, and for a push contact
+how far past the face the fingertips squeeze. :class:`JointChoice` / :class:`HandoverChoice` are the two
+tasks' inputs. :func:`joint_candidates` / :func:`handover_candidates` list them from grasps.json, best
+first; :func:`choose` picks the requested object or the best one and says why.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bimanual_app.io_utils import InputError, Problem
+from bimanual_app.transforms import check_T
+
+__all__ = ["GraspSpec", "JointChoice", "HandoverChoice", "joint_candidates", "handover_candidates", "choose"]
+
+
+@dataclass
+class GraspSpec:
+    """One arm's grasp.
+
+    Attributes:
+        arm: ``primary`` or ``secondary``.
+        T_b1_g: (4,4) gripper pose in b1 at contact.
+        width: opening while approaching (m).
+        kind: ``pinch`` (fingers close on the object) or ``push`` (open fingertips press a face).
+        press: push only: how far past the face the fingertips are driven to squeeze (m).
+        contact_width: the object's width between the contacts (m), or None.
+        score: grasp score (higher is better).
+        q: (J,) the grasping stage's IK solution (a seed), or None.
+        q_pre: (J,) its pre-grasp solution, or None.
+        squeeze: push only: (3,) unit direction in b1 the fingertips are driven along (the face's inward
+            normal; default the approach z).
+        pre_dist: pre-grasp distance back along the approach (m; grasps.json ``pregrasp_distance``, the
+            distance the grasping stage checked the pre-grasp at).
+    """
+
+    arm: str
+    T_b1_g: np.ndarray
+    width: float
+    kind: str = "pinch"
+    press: float = 0.0
+    contact_width: float | None = None
+    score: float = 0.0
+    q: np.ndarray | None = None
+    q_pre: np.ndarray | None = None
+    squeeze: np.ndarray | None = None
+    pre_dist: float = 0.08
+
+    @property
+    def squeeze_dir(self) -> np.ndarray:
+        d = self.T_b1_g[:3, 2] if self.squeeze is None else np.asarray(self.squeeze, dtype=np.float64)
+        return d / np.linalg.norm(d)
+
+
+@dataclass
+class JointChoice:
+    object_id: int
+    primary: GraspSpec
+    secondary: GraspSpec
+    score: float
+    kind: str
+    info: dict = field(default_factory=dict)
+
+
+@dataclass
+class HandoverChoice:
+    """A hand-over: the giver's pick grasp, the rigid object motion to the transfer pose, and the grasps
+    there (all in b1)."""
+
+    object_id: int
+    pick: GraspSpec
+    T_move: np.ndarray
+    giver_transfer: GraspSpec
+    receiver: GraspSpec
+    score: float
+    info: dict = field(default_factory=dict)
+
+
+def _arr(d: dict, key: str, shape=None):
+    v = d.get(key)
+    if v is None:
+        return None
+    a = np.asarray(v, dtype=np.float64)
+    if shape is not None and a.shape != shape:
+        return None
+    return a
+
+
+def _spec(d: dict, arm: str, path: str, where: str, pre_dist: float = 0.08) -> GraspSpec:
+    """A GraspSpec from one grasps.json grasp entry."""
+    try:
+        T = check_T(f"{where}.T_b1_g", np.asarray(d["T_b1_g"], dtype=np.float64))
+        width = float(d["width"])
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(Problem(path, where, f"not a usable grasp ({e})", "re-run `bijcr grasp`")) from None
+    kind = str(d.get("kind", "pinch"))
+    depth = float(d.get("depth", 0.0) or 0.0)
+    press = float(d.get("press", -depth if kind == "push" and depth < 0 else 0.0))
+    cw = d.get("contact_width")
+    q_pre = _arr(d, "q_pregrasp", (6,))
+    return GraspSpec(arm, T, width, kind, press, None if cw is None else float(cw), float(d.get("score", 0.0)),
+                     _arr(d, "q", (6,)), q_pre if q_pre is not None else _arr(d, "q_pre", (6,)),
+                     _arr(d, "squeeze_b1", (3,)), float(pre_dist))
+
+
+def _objects(grasps: dict) -> list[dict]:
+    return [o for o in grasps.get("objects", []) or [] if isinstance(o, dict)]
+
+
+def joint_candidates(grasps: dict, path: str) -> list[JointChoice]:
+    """Every joint pair of every object in grasps.json, best first."""
+    out = []
+    pre = float(grasps.get("pregrasp_distance") or 0.08)
+    for o in _objects(grasps):
+        oid = int(o.get("id", -1))
+        for n, pair in enumerate(o.get("joint_grasps") or []):
+            where = f"objects[{oid}].joint_grasps[{n}]"
+            p, s = pair.get("primary"), pair.get("secondary")
+            if not isinstance(p, dict) or not isinstance(s, dict):
+                raise InputError(Problem(path, where, "a joint pair needs 'primary' and 'secondary' grasps",
+                                         "re-run `bijcr grasp`"))
+            kind = str(pair.get("kind", p.get("kind", "pinch")))
+            p = dict(p, kind=p.get("kind", kind))
+            s = dict(s, kind=s.get("kind", kind))
+            out.append(JointChoice(oid, _spec(p, "primary", path, where + ".primary", pre),
+                                   _spec(s, "secondary", path, where + ".secondary", pre),
+                                   float(pair.get("score", 0.0)), kind,
+                                   {k: pair[k] for k in ("imbalance", "separation") if k in pair}))
+    out.sort(key=lambda c: -c.score)
+    return out
+
+
+def handover_candidates(grasps: dict, path: str) -> list[HandoverChoice]:
+    """The hand-over of every object that has one in grasps.json, best first."""
+    out = []
+    pre = float(grasps.get("pregrasp_distance") or 0.08)
+    for o in _objects(grasps):
+        oid = int(o.get("id", -1))
+        h = o.get("handover")
+        if not isinstance(h, dict) or not h:
+            continue
+        where = f"objects[{oid}].handover"
+        try:
+            T_move = check_T(where + ".T_move", np.asarray(h["T_move"], dtype=np.float64))
+        except (KeyError, ValueError) as e:
+            raise InputError(Problem(path, where + ".T_move", f"missing or invalid ({e})", "re-run `bijcr grasp`")) from None
+        giver = h.get("giver") or {}
+        cw = giver.get("contact_width")
+        pick = _spec(dict(giver.get("pick", {}), contact_width=cw), "primary", path, where + ".giver.pick", pre)
+        tr = dict(giver.get("transfer", {}), width=pick.width, contact_width=cw)
+        if "T_b1_g" not in tr:
+            tr["T_b1_g"] = T_move @ pick.T_b1_g
+        gt = _spec(tr, "primary", path, where + ".giver.transfer", pre)
+        rec = _spec(h.get("receiver") or {}, "secondary", path, where + ".receiver", pre)
+        out.append(HandoverChoice(oid, pick, T_move, gt, rec, float(h.get("score", 0.0)),
+                                  {k: h[k] for k in ("gap",) if k in h}))
+    out.sort(key=lambda c: -c.score)
+    return out
+
+
+def choose(cands: list, object_id: int | None, task: str, path: str, known_ids: list[int]):
+    """The candidates to try (one object) and the reason for the object.
+
+    With ``object_id``: that object's candidates (InputError when the id is unknown; an empty list when
+    the object has none: the caller reports it as unreachable). Without: the object of the best-scoring
+    candidate.
+    """
+    if object_id is not None:
+        if object_id not in known_ids:
+            raise InputError(Problem(path, "--object", f"no object {object_id} in the segments "
+                                     f"(objects: {', '.join(map(str, sorted(known_ids))) or 'none'})",
+                                     "pass one of the listed ids, or leave --object out to let the task choose"))
+        mine = [c for c in cands if c.object_id == object_id]
+        return mine, f"object {object_id}, as requested"
+    if not cands:
+        return [], "no object has a feasible " + ("two-arm grasp" if task == "joint-grasp" else "hand-over")
+    best = cands[0].object_id
+    mine = [c for c in cands if c.object_id == best]
+    others = sorted({c.object_id for c in cands} - {best})
+    what = "two-arm grasp pair" if task == "joint-grasp" else "hand-over"
+    reason = (f"object {best} has the best-scoring {what} (score {cands[0].score:.2f}"
+              + (f"; other candidates: {', '.join(map(str, others))}" if others else "; the only candidate") + ")")
+    return mine, reason

@@ -1,0 +1,313 @@
+"""The motion a task needs, on the motion layer's public API (``bimanual_app.planning``, ``collision``).
+
+Free motions go through :meth:`BimanualSetup.plan_configurations` (IK goals -> OMPL -> time
+parametrisation -> dense validation). Two things a task needs that the motion layer does not offer as one
+call are composed here from its public pieces, and nothing else:
+
+- **Cartesian moves** (approach, squeeze, lift, retreat, the coupled carry of a joint grasp): the gripper
+  poses along a straight line, IK at every waypoint (1 cm apart) seeded with the previous solution
+  (``BimanualSetup.ik``, closest solution first), the joint path stacked over the moving arms,
+  :func:`bimanual_app.planning.parametrize` within the velocity/acceleration limits and
+  :func:`bimanual_app.planning.validate_samples` (joint, velocity, acceleration limits and collisions
+  with no step larger than the margin) on exactly the samples returned.
+- **The object's own clearance** while both grippers carry it: the collision world attaches an object to
+  one gripper only, so for a two-arm carry the object's points are moved along the planned object motion
+  and looked up in the scene map's distance field (``SceneMap.lookup``).
+
+The collision context is explicit: :meth:`TaskMotion.context` says whether the target object is part of
+the map (free motions towards it), cut out (the last centimetres of an approach, where the fingers
+straddle it), or attached to a gripper (carrying). Every trajectory returned has been validated.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from bimanual_app.transforms import check_T, inv_T, make_T
+
+__all__ = ["PlanFailure", "TaskMotion", "translate_along", "robot_points_mask", "WAYPOINT_STEP", "BASE_RADIUS"]
+
+WAYPOINT_STEP = 0.01  # m between Cartesian waypoints
+MAX_JOINT_JUMP = 0.35  # rad between consecutive Cartesian waypoints: more means an IK branch switch
+BASE_RADIUS = 0.15  # m: background points this close to a base's vertical axis are the robot itself
+
+
+def robot_points_mask(points: np.ndarray, labels: np.ndarray, bases_b1: np.ndarray, up: np.ndarray,
+                      table_height: float, radius: float = BASE_RADIUS, above: float = 0.015) -> np.ndarray:
+    """(N,) True for cloud points that are the robots themselves, not obstacles: background points
+    (label -1) more than ``above`` m over the table within ``radius`` m of a base's vertical axis.
+
+    The wrist cameras see both arms, so a reconstruction's cloud holds them, at their capture poses, as
+    points around the bases; in a collision map they would put the arms in collision with themselves
+    (the rest pose included). A smallest adapter until the cloud comes without robot pixels.
+    """
+    P = np.asarray(points, dtype=np.float64)
+    up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+    h = P @ up - table_height
+    mask = np.zeros(len(P), dtype=bool)
+    for b in np.atleast_2d(bases_b1):
+        d = P - b
+        d -= np.outer(d @ up, up)
+        mask |= np.linalg.norm(d, axis=1) < radius
+    return mask & (np.asarray(labels) < 0) & (h > above)
+
+
+class PlanFailure(Exception):
+    """A task could not be planned: ``stage`` (``reach``, ``plan``, ``cartesian``, ``validation``...) and why."""
+
+    def __init__(self, stage: str, message: str):
+        self.stage = stage
+        self.message = message
+        super().__init__(f"{stage}: {message}")
+
+
+def translate_along(T: np.ndarray, axis_b1: np.ndarray, dist: float) -> np.ndarray:
+    """``T`` (4,4) moved by ``dist`` m along ``axis_b1`` (3,) (a direction in b1)."""
+    out = np.array(T, dtype=np.float64)
+    out[:3, 3] += dist * np.asarray(axis_b1, dtype=np.float64)
+    return out
+
+
+@dataclass
+class _Traj:
+    """A validated trajectory of one arm (times (T,), q (T,J)); gripper widths are added by the task."""
+
+    times: np.ndarray
+    q: np.ndarray
+
+    @property
+    def duration(self) -> float:
+        return float(self.times[-1])
+
+
+class TaskMotion:
+    """Both arms, the scene map, and one target object, for planning one task.
+
+    Args:
+        robot: RobotModel (both arms).
+        T_b1_b2: (4,4) secondary base in b1 (calibrated).
+        points: (N,3) metric scene cloud in b1.
+        object_points: (M,3) the target object's points in b1 (extruded to the table: the body's hull).
+        segment_points: (K,3) the object's points in the cloud (cut out of the map with ``cut_radius``).
+        plan_time: OMPL time limit per query (s).
+        speed: fraction of the velocity/acceleration limits used.
+        margin: collision margin (m).
+    """
+
+    def __init__(self, robot, T_b1_b2: np.ndarray, points: np.ndarray, object_points: np.ndarray,
+                 segment_points: np.ndarray | None = None, plan_time: float = 5.0, speed: float = 0.5, margin: float = 0.01, cut_radius: float = 0.015):
+        from bimanual_app.planning import BimanualSetup
+
+        self.robot = robot
+        self.setup = BimanualSetup(robot, check_T("T_b1_b2", T_b1_b2), points, margin=margin, speed=speed)
+        self.world = self.setup.world
+        self.plan_time = float(plan_time)
+        self.speed = float(speed)
+        self.object_points = np.asarray(object_points, dtype=np.float64)
+        self.full_map = self.world.scene
+        cut = self.object_points if segment_points is None else np.vstack([segment_points, self.object_points])
+        self.cut_map = self.full_map.without_near(cut, cut_radius)
+        self.stats = {"ompl_queries": 0, "cartesian_moves": 0, "ik_calls": 0, "plan_s": 0.0}
+
+    # ------------------------------------------------------------------ collision context
+    @contextlib.contextmanager
+    def context(self, object_mode: str = "map", openings: dict | None = None, attach: tuple | None = None):
+        """Set the world for a query, restore it after.
+
+        object_mode: ``map`` (the object is an obstacle), ``cut`` (ignored: the fingers meet it), or
+            ``attached`` (cut from the map and attached to ``attach = (arm, q_at_attach, points_b1)``).
+        openings: arm name -> gripper opening (m) for the finger shapes.
+        """
+        w = self.world
+        old_openings = {a.name: a.opening for a in w.arms}
+        w.set_scene(self.full_map if object_mode == "map" else self.cut_map)
+        for arm, o in (openings or {}).items():
+            w.set_opening(arm, o)
+        if object_mode == "attached":
+            arm, q, pts = attach
+            w.attach(arm, pts, q, name="object", padding=0.002)
+        try:
+            yield w
+        finally:
+            if object_mode == "attached":
+                w.detach(attach[0], "object")
+            for arm, o in old_openings.items():
+                w.set_opening(arm, o)
+            w.set_scene(self.full_map)
+
+    # ------------------------------------------------------------------ IK
+    def ik(self, arm: str, T_b1_g: np.ndarray, q_seed: np.ndarray, n: int = 6) -> np.ndarray:
+        """(K,J) IK solutions for the gripper frame at ``T_b1_g`` in b1, closest to ``q_seed`` first.
+        Raises PlanFailure('reach') when there is none."""
+        self.stats["ik_calls"] += 1
+        r = self.setup.ik(arm, T_b1_g, q_seed, n_solutions=n)
+        if not r.success:
+            p = np.round(T_b1_g[:3, 3], 3).tolist()
+            raise PlanFailure("reach", f"the {arm} gripper cannot reach {p} in b1 with that orientation: {r.message}")
+        return r.solutions
+
+    def valid(self, q: dict) -> list[str]:
+        """Problems of a configuration of both arms in the current context ([] when valid)."""
+        if self.world.valid(q["primary"], q["secondary"]):
+            return []
+        return self.world.explain(q["primary"], q["secondary"]) or ["in collision"]
+
+    def ik_valid(self, arm: str, T_b1_g: np.ndarray, q_seed: np.ndarray, q_other: np.ndarray) -> np.ndarray:
+        """The IK solutions (closest first) that are collision free with the other arm at ``q_other``."""
+        sols = self.ik(arm, T_b1_g, q_seed)
+        other = "secondary" if arm == "primary" else "primary"
+        ok = [s for s in sols if not self.valid({arm: s, other: q_other})]
+        if not ok:
+            why = self.valid({arm: sols[0], other: q_other})
+            raise PlanFailure("reach", f"the {arm} arm reaches {np.round(T_b1_g[:3, 3], 3).tolist()} only in "
+                                       f"collision: {'; '.join(why[:2])}")
+        return np.stack(ok)
+
+    # ------------------------------------------------------------------ free motion (OMPL)
+    def plan_free(self, arms: list[str], q_now: dict, goals: list[dict]) -> dict:
+        """OMPL motion of ``arms`` from ``q_now`` to one of ``goals`` (arm -> (J,)); arm -> _Traj, validated."""
+        self.stats["ompl_queries"] += 1
+        start = {a: q_now[a] for a in arms}
+        if all(all(np.allclose(g[a], q_now[a], atol=1e-9) for a in arms) for g in goals[:1]):
+            return {a: _Traj(np.array([0.0, 0.05]), np.stack([q_now[a], q_now[a]])) for a in arms}
+        plan = self.setup.plan_configurations(arms, start, goals, q_now, timeout=self.plan_time)
+        self.stats["plan_s"] += float(plan.timings.get("total", plan.timings.get("plan", 0.0)))
+        if not plan.success:
+            stage = {"search": "plan", "goal": "reach", "start": "start"}.get(plan.reason, "plan")
+            extra = f" (no path found within the {self.plan_time:g} s limit)" if plan.reason == "search" else ""
+            raise PlanFailure(stage, f"{' + '.join(arms)} motion: {plan.message}{extra}")
+        return {a: _Traj(np.asarray(t.times), np.asarray(t.q)) for a, t in plan.trajectories.items()}
+
+    # ------------------------------------------------------------------ Cartesian moves
+    def ik_path(self, poses: dict, q0: dict) -> dict:
+        """Joint waypoints through gripper poses, all arms on the same waypoints.
+
+        poses: arm -> (K,4,4) gripper poses in b1; q0: arm -> (J,) start. Returns arm -> (K',J) (K' >= K),
+        each IK seeded by the previous solution. Where consecutive solutions differ by more than
+        ``MAX_JOINT_JUMP``, the segment is split for every arm (poses interpolated, slerp) in 2, 4, 8: near
+        a wrist singularity the joints move fast but continuously, and the largest step then shrinks with
+        the sub-steps (accepted once it has nearly halved with every split and is below half the limit);
+        a jump that does not shrink is a switch between IK branches and is refused, as is a pose out of
+        reach. (Fast joints are slowed by the time parametrisation.)
+        """
+        from scipy.spatial.transform import Rotation, Slerp
+
+        arms = list(poses)
+        K = len(poses[arms[0]])
+        Q = {a: [np.asarray(q0[a], dtype=np.float64)] for a in arms}
+        for k in range(1, K):
+            prev = np.inf
+            for parts in (1, 2, 4, 8):
+                u = np.linspace(0.0, 1.0, parts + 1)[1:]
+                sub, jump = {}, 0.0
+                for a in arms:
+                    T0, T1 = poses[a][k - 1], poses[a][k]
+                    R = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([T0[:3, :3], T1[:3, :3]])))(u).as_matrix()
+                    q, sub[a] = Q[a][-1], []
+                    for i, ui in enumerate(u):
+                        T = make_T(R[i], T0[:3, 3] + ui * (T1[:3, 3] - T0[:3, 3]))
+                        self.stats["ik_calls"] += 1
+                        r = self.setup.ik(a, T, q, n_solutions=1, max_seeds=4)
+                        if not r.success:
+                            raise PlanFailure("cartesian", f"the {a} gripper leaves its reach {k * WAYPOINT_STEP * 100:.0f}"
+                                                           f" cm along the move (at {np.round(T[:3, 3], 3).tolist()})")
+                        jump = max(jump, float(np.max(np.abs(r.q - q))))
+                        sub[a].append(r.q)
+                        q = r.q
+                if jump <= MAX_JOINT_JUMP / parts or (jump <= 0.6 * prev and jump <= MAX_JOINT_JUMP / 2):
+                    break
+                prev = jump
+            else:
+                raise PlanFailure("cartesian", f"the {' / '.join(arms)} arm would swing to another joint branch on "
+                                               f"the move (joint step {jump:.2f} rad over {WAYPOINT_STEP * 100 / 8:.2f} cm)")
+            for a in arms:
+                Q[a].extend(sub[a])
+        return {a: np.stack(Q[a]) for a in arms}
+
+    def cartesian(self, moves: dict, q_now: dict, min_duration: float = 0.0) -> dict:
+        """Cartesian moves of the grippers, all moving arms together on one clock.
+
+        moves: arm -> (T_from (4,4), T_to (4,4)) in b1 (a straight line, orientation by slerp), or arm ->
+            (K,4,4) gripper poses to pass through (e.g. a planned object motion applied to a grasp; every
+            arm given so must have the same K, about 1 cm apart);
+        returns arm -> _Traj, validated with the other arm held at ``q_now``.
+        """
+        from scipy.spatial.transform import Rotation, Slerp
+
+        from bimanual_app.planning import JointSpace, parametrize, validate_samples
+
+        self.stats["cartesian_moves"] += 1
+        arms = [a for a in ("primary", "secondary") if a in moves]
+        given = {a: np.asarray(m, dtype=np.float64) for a, m in moves.items() if np.ndim(m) == 3}
+        pairs = {a: m for a, m in moves.items() if a not in given}
+        if given:
+            n = len(next(iter(given.values())))
+            if any(len(v) != n for v in given.values()) or pairs:
+                raise ValueError("cartesian: give either waypoint arrays of one length for every arm, or (from, to) pairs")
+        else:
+            dist = max(float(np.linalg.norm(T1[:3, 3] - T0[:3, 3])) for T0, T1 in pairs.values())
+            ang = max(float(np.linalg.norm((Rotation.from_matrix(T0[:3, :3]).inv() * Rotation.from_matrix(T1[:3, :3]))
+                                           .as_rotvec())) for T0, T1 in pairs.values())
+            n = max(2, int(np.ceil(max(dist / WAYPOINT_STEP, ang / 0.05))) + 1)
+        s = np.linspace(0.0, 1.0, n)
+        poses = {}
+        for a in arms:
+            if a in given:
+                poses[a] = given[a]
+            else:
+                T0, T1 = pairs[a]
+                slerp = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([T0[:3, :3], T1[:3, :3]])))
+                R = slerp(s).as_matrix()
+                P = T0[:3, 3] + s[:, None] * (T1[:3, 3] - T0[:3, 3])
+                poses[a] = np.stack([make_T(R[i], P[i]) for i in range(n)])
+        Qs = self.ik_path(poses, q_now)
+        paths = [Qs[a] for a in arms]
+        W = np.concatenate(paths, axis=1)
+        hold = {a: q_now[a] for a in ("primary", "secondary") if a not in arms}
+        space = JointSpace(self.world, arms, hold)
+        traj = parametrize(W, space.vmax * self.speed, space.amax * self.speed)
+        times, Q = traj.sample_uniform(self.setup.dt)
+        if times[-1] < min_duration:  # slow, gentle moves (squeeze): stretch time, limits still hold
+            times = times * (min_duration / max(times[-1], 1e-9))
+        rep = validate_samples(space, times, Q)
+        if not rep.ok:
+            raise PlanFailure("validation", f"straight {' + '.join(arms)} move: {'; '.join(rep.problems[:2])}")
+        out = {}
+        for i, a in enumerate(arms):
+            sl = slice(space.offsets[i], space.offsets[i + 1])
+            out[a] = _Traj(times, Q[:, sl].copy())
+        return out
+
+    def validate_timeline(self, timeline: dict) -> None:
+        """Validate the whole plan (arm -> JointTrajectory, one clock) as the hardware will run it: both
+        arms sampled at the union of their sample times, joint / velocity / acceleration limits and
+        collisions (arms against the scene with the target object cut out, and against each other)
+        densely, with ``validate_samples``. Raises PlanFailure."""
+        from bimanual_app.planning import JointSpace, validate_samples
+
+        arms = [a for a in ("primary", "secondary") if a in timeline]
+        times = np.unique(np.concatenate([np.asarray(timeline[a].times) for a in arms]))
+        Q = np.concatenate([np.stack([timeline[a].sample(t)[0] for t in times]) for a in arms], axis=1)
+        with self.context("cut"):
+            rep = validate_samples(JointSpace(self.world, arms, {}), times, Q)
+        if not rep.ok:
+            raise PlanFailure("validation", "the whole plan: " + "; ".join(rep.problems[:2]))
+
+    def object_clear(self, T_moves: np.ndarray, skip_rise: float = 0.02, up: np.ndarray | None = None) -> list[str]:
+        """Problems of the carried object along rigid motions ``T_moves`` (K,4,4) (applied to its points):
+        any object point inside an occupied cell of the map (object cut out) once it rose ``skip_rise``."""
+        up = np.array([0.0, 0.0, 1.0]) if up is None else up
+        P = self.object_points
+        smap = self.cut_map
+        for k, T in enumerate(T_moves):
+            if float(T[:3, 3] @ up) < skip_rise and np.allclose(T[:3, :3], np.eye(3), atol=1e-6):
+                continue
+            Pk = P @ T[:3, :3].T + T[:3, 3]
+            d = smap.lookup(Pk)
+            if np.any(d <= 0.0):
+                return [f"the carried object meets the scene at step {k} of {len(T_moves)} "
+                        f"(near {np.round(Pk[int(np.argmin(d))], 3).tolist()})"]
+        return []

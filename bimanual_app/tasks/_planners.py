@@ -1,0 +1,324 @@
+"""The two tasks as phases: joint grasp (both arms lift one object together) and hand-over.
+
+Every arm motion comes from :class:`~._motion.TaskMotion` (OMPL for free motions, Cartesian IK paths for
+straight moves), each validated (limits, velocities, collisions) in the collision context of its phase;
+gripper phases keep the arms still. Gripper widths are part of every trajectory, so the plan's timeline
+is complete: what the preview simulates is what the hardware would run.
+
+Joint grasp: reach both pre-grasps (12-DoF OMPL query) -> straight approach -> close (pinch) or squeeze
+(push: the open fingertips are driven ``press`` past the faces) -> lift: the *object's* motion is planned
+(straight up by ``lift``), each gripper's pose is that motion applied to its grasp, IK at every
+waypoint for both arms on one clock, the object's own clearance checked along it -> hold 2.3 s (checked)
+-> place (the reverse) -> release -> retreat.
+
+Hand-over: primary reaches, approaches, closes on the object, lifts 6 cm, carries it (object attached)
+to the transfer pose -> secondary reaches its pre-grasp (object attached to the primary, as an obstacle)
+-> straight approach -> closes -> primary opens -> retreats 8 cm along its approach -> hold 2.3 s
+(checked: held by the secondary only).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._grasps import GraspSpec, HandoverChoice, JointChoice
+from ._motion import PlanFailure, TaskMotion, translate_along
+from ._plan import Phase, TaskPlan
+
+__all__ = ["plan_joint_grasp", "plan_handover", "LIFT", "HOLD_S"]
+
+LIFT = 0.15  # m the joint grasp lifts the object (>= 10 cm needed)
+HANDOVER_LIFT = 0.06  # m straight up after the pick, before the free carry
+HOLD_S = 2.3  # s of the checked hold (2 s needed)
+CLOSE_S = 1.0  # s to close a gripper (force limited: it stops on the object)
+SETTLE_S = 0.4  # s still after a gripper change
+CLOSED = 0.0  # commanded width when closing on an object (the force limit stops the fingers)
+
+
+def _jt(times, q, widths):
+    from bimanual_app.hardware import JointTrajectory
+
+    times = np.asarray(times, dtype=np.float64)
+    w = np.broadcast_to(np.asarray(widths, dtype=np.float64), times.shape).copy()
+    return JointTrajectory(times, np.asarray(q, dtype=np.float64), w)
+
+
+def _ramp(times, w0, w1):
+    """Widths from w0 to w1 linearly over ``times``."""
+    t = np.asarray(times, dtype=np.float64)
+    s = t / t[-1] if t[-1] > 0 else np.ones_like(t)
+    return w0 + s * (w1 - w0)
+
+
+def _still(q, widths_from, widths_to, close_s=CLOSE_S, settle_s=SETTLE_S):
+    """An arm standing still while its gripper goes from one width to another (then settles)."""
+    times = np.array([0.0, close_s, close_s + settle_s])
+    return _jt(times, np.stack([q, q, q]), [widths_from, widths_to, widths_to])
+
+
+def _pre(g: GraspSpec) -> np.ndarray:
+    """The pre-grasp: ``g.pre_dist`` back along the approach (where the grasping stage checked it)."""
+    return translate_along(g.T_b1_g, g.T_b1_g[:3, 2], -g.pre_dist)
+
+
+def object_lift(motion: TaskMotion, up: np.ndarray, lift: float) -> tuple[np.ndarray, str]:
+    """The object's lift as rigid motions (K,4,4) whose swept object stays clear of the scene map.
+
+    Tried in order: straight up; up while moving 3 cm, then 6 cm, horizontally away from the nearest
+    obstacle around the object (a neighbour it touches), reached over the first half of the lift.
+    Raises PlanFailure when none is clear.
+    """
+    from scipy.spatial import cKDTree
+
+    P = motion.object_points
+    centre = P.mean(axis=0)
+    cand = [(np.zeros(3), "straight up")]
+    pts = motion.cut_map.points
+    near = pts[cKDTree(P).query(pts, k=1, distance_upper_bound=0.06)[0] < np.inf]
+    h = near @ up
+    near = near[h > (P @ up).min() + 0.01]  # not the table under it
+    if len(near):
+        d = centre - near.mean(axis=0)
+        d = d - (d @ up) * up
+        if np.linalg.norm(d) > 1e-6:
+            d /= np.linalg.norm(d)
+            cand += [(0.03 * d, "up and 3 cm away from its neighbour"), (0.06 * d, "up and 6 cm away from its neighbour")]
+    n = max(2, int(np.ceil(lift / 0.01)) + 1)
+    s = np.linspace(0.0, 1.0, n)
+    first = None
+    for shift, how in cand:
+        T = np.stack([np.eye(4)] * n)
+        T[:, :3, 3] = (s * lift)[:, None] * up + np.minimum(2 * s, 1.0)[:, None] * shift
+        problems = motion.object_clear(T, up=up)
+        if not problems:
+            return T, how
+        first = first or problems[0]
+    raise PlanFailure("validation", "lift: " + first)
+
+
+def _retreat_directions(T_b1_g: np.ndarray, up: np.ndarray) -> list[tuple[str, np.ndarray]]:
+    """Ways an open gripper can leave an object it straddles: any direction across its closing axis y
+    slides the fingers along the object's faces. In order: back along the approach, horizontally back
+    towards its own base side, straight up."""
+    y = T_b1_g[:3, 1]
+    out = [("back along its approach", -T_b1_g[:3, 2])]
+    for name, d in (("horizontally back", -(T_b1_g[:3, 2] - (T_b1_g[:3, 2] @ up) * up)), ("up", up)):
+        d = d - (d @ y) * y
+        n = np.linalg.norm(d)
+        if n > 0.3:
+            out.append((name, d / n))
+    return out
+
+
+def _goal_ik(motion: TaskMotion, arm: str, T: np.ndarray, seeds: list) -> np.ndarray:
+    """IK solutions for T, trying the grasping stage's solution as the first seed."""
+    last = None
+    for s in seeds:
+        if s is None:
+            continue
+        try:
+            return motion.ik(arm, T, s)
+        except PlanFailure as e:
+            last = e
+    raise last or PlanFailure("reach", f"no seed for the {arm} arm")
+
+
+def plan_joint_grasp(motion: TaskMotion, choice: JointChoice, q_start: dict, width_start: dict,
+                     lift: float = LIFT, up: np.ndarray | None = None) -> TaskPlan:
+    """The joint-grasp plan for ``choice`` from ``q_start`` (arm -> (J,)); raises PlanFailure."""
+    up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=np.float64)
+    plan = TaskPlan({a: np.asarray(q, float) for a, q in q_start.items()}, dict(width_start))
+    arms = ("primary", "secondary")
+    G = {"primary": choice.primary, "secondary": choice.secondary}
+    push = choice.kind == "push"
+    w_open = {a: G[a].width for a in arms}
+    w_hold = {a: (G[a].width if push else CLOSED) for a in arms}
+    opening_hold = {a: (G[a].width if push else (G[a].contact_width or 0.0)) for a in arms}
+    plan.info = {"kind": choice.kind, "score": choice.score, **choice.info, "grip": {a: G[a].kind for a in arms},
+                 "grasps": {a: {"T_b1_g": G[a].T_b1_g, "width": G[a].width, "press": G[a].press} for a in arms}}
+
+    # 1. reach both pre-grasps together (12 DoF): the object is an obstacle
+    pre = {a: _pre(G[a]) for a in arms}
+    with motion.context("map", openings=w_open):
+        sols = {a: _goal_ik(motion, a, pre[a], [G[a].q_pre, q_start[a], G[a].q]) for a in arms}
+        goals = [{"primary": s1, "secondary": s2} for s1 in sols["primary"][:3] for s2 in sols["secondary"][:3]]
+        goals = [g for g in goals if not motion.valid(g)] or goals[:1]
+        tr = motion.plan_free(list(arms), q_start, goals)
+    plan.add(Phase("reach", {a: _jt(tr[a].times, tr[a].q, _ramp(tr[a].times, width_start[a], w_open[a]))
+                             for a in arms}, "both grippers to their pre-grasps, opening", "ompl"))
+
+    # 2. straight approach to contact (the object is cut out: the fingers meet it)
+    q, _ = plan.end_state()
+    with motion.context("cut", openings=w_open):
+        tr = motion.cartesian({a: (pre[a], G[a].T_b1_g) for a in arms}, q)
+    plan.add(Phase("approach", {a: _jt(tr[a].times, tr[a].q, w_open[a]) for a in arms},
+                   f"straight {G['primary'].pre_dist * 100:.0f} cm approach to the object", "cartesian"))
+
+    # 3. grip: close (pinch) or squeeze (push)
+    q, _ = plan.end_state()
+    if push:
+        S = {a: translate_along(G[a].T_b1_g, G[a].squeeze_dir, G[a].press) for a in arms}
+        with motion.context("cut", openings=w_open):
+            tr = motion.cartesian({a: (G[a].T_b1_g, S[a]) for a in arms}, q, min_duration=1.0)
+        plan.add(Phase("squeeze", {a: _jt(tr[a].times, tr[a].q, w_open[a]) for a in arms},
+                       "fingertips pressed into both faces: the object is held between the grippers", "cartesian"))
+    else:
+        S = {a: G[a].T_b1_g for a in arms}
+        plan.add(Phase("close", {a: _still(q[a], w_open[a], CLOSED) for a in arms},
+                       "both grippers close (force limited)", "gripper"))
+
+    # 4. lift: the object's motion, both grippers follow it
+    q, _ = plan.end_state()
+    tr, err = None, None
+    for h in (lift, 0.8 * lift):  # near the top of the reach, lift a little less (10 cm are needed)
+        try:
+            T_moves, how = object_lift(motion, up, h)
+            with motion.context("cut", openings=opening_hold):
+                tr = motion.cartesian({a: T_moves @ S[a] for a in arms}, q)
+            lift = h
+            break
+        except PlanFailure as e:
+            err = err or e
+    if tr is None:
+        raise err
+    plan.add(Phase("lift", {a: _jt(tr[a].times, tr[a].q, w_hold[a]) for a in arms},
+                   f"object lifted {lift * 100:.0f} cm ({how}), both grippers following it", "cartesian"))
+    plan.info["object_motion"] = {"lift_m": lift, "how": how, "T_move_end": T_moves[-1], "waypoints": len(T_moves)}
+
+    # 5. hold (checked)
+    q, _ = plan.end_state()
+    plan.add(Phase("hold", {a: _jt([0.0, HOLD_S], np.stack([q[a], q[a]]), w_hold[a]) for a in arms},
+                   f"held up for {HOLD_S:g} s", "hold", check="joint-lift"))
+
+    # 6. place, release, retreat
+    with motion.context("cut", openings=opening_hold):
+        tr = motion.cartesian({a: (T_moves @ S[a])[::-1] for a in arms}, q)
+    plan.add(Phase("place", {a: _jt(tr[a].times, tr[a].q, w_hold[a]) for a in arms},
+                   "object set back down", "cartesian"))
+    q, _ = plan.end_state()
+    if push:
+        with motion.context("cut", openings=w_open):
+            tr = motion.cartesian({a: (S[a], pre[a]) for a in arms}, q)
+        plan.add(Phase("retreat", {a: _jt(tr[a].times, tr[a].q, w_open[a]) for a in arms},
+                       "both grippers back off to their pre-grasps", "cartesian"))
+    else:
+        plan.add(Phase("release", {a: _still(q[a], CLOSED, w_open[a]) for a in arms}, "both grippers open",
+                       "gripper"))
+        q, _ = plan.end_state()
+        with motion.context("cut", openings=w_open):
+            tr = motion.cartesian({a: (S[a], pre[a]) for a in arms}, q)
+        plan.add(Phase("retreat", {a: _jt(tr[a].times, tr[a].q, w_open[a]) for a in arms},
+                       "both grippers back off to their pre-grasps", "cartesian"))
+    return plan
+
+
+def plan_handover(motion: TaskMotion, choice: HandoverChoice, q_start: dict, width_start: dict,
+                  object_points: np.ndarray, up: np.ndarray | None = None) -> TaskPlan:
+    """The hand-over plan for ``choice`` from ``q_start``; raises PlanFailure.
+
+    ``object_points``: (M,3) the object's points in b1 where it lies (attached to a gripper while carried).
+    """
+    up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=np.float64)
+    plan = TaskPlan({a: np.asarray(q, float) for a, q in q_start.items()}, dict(width_start))
+    pick, gt, rec = choice.pick, choice.giver_transfer, choice.receiver
+    wg, wr = pick.width, rec.width
+    cw_g = pick.contact_width or 0.0
+    cw_r = rec.contact_width or 0.0
+    plan.info = {"score": choice.score, **choice.info, "T_move": choice.T_move,
+                 "transfer_centre_b1": (choice.T_move @ np.r_[object_points.mean(0), 1.0])[:3],
+                 "grasps": {"pick": {"T_b1_g": pick.T_b1_g, "width": wg},
+                            "giver_transfer": {"T_b1_g": gt.T_b1_g},
+                            "receiver": {"T_b1_g": rec.T_b1_g, "width": wr}}}
+
+    # 1-3. primary picks
+    pre_pick = _pre(pick)
+    with motion.context("map", openings={"primary": wg, "secondary": width_start["secondary"]}):
+        sols = _goal_ik(motion, "primary", pre_pick, [pick.q_pre, q_start["primary"], pick.q])
+        goals = [{"primary": s} for s in sols[:4]]
+        tr = motion.plan_free(["primary"], q_start, goals)["primary"]
+    plan.add(Phase("reach", {"primary": _jt(tr.times, tr.q, _ramp(tr.times, width_start["primary"], wg))},
+                   "primary to its pre-grasp, opening", "ompl"))
+    q, _ = plan.end_state()
+    with motion.context("cut", openings={"primary": wg}):
+        tr = motion.cartesian({"primary": (pre_pick, pick.T_b1_g)}, q)["primary"]
+    plan.add(Phase("approach", {"primary": _jt(tr.times, tr.q, wg)}, "straight approach", "cartesian"))
+    q, _ = plan.end_state()
+    q_grasp = q["primary"].copy()
+    plan.add(Phase("grasp", {"primary": _still(q_grasp, wg, CLOSED)}, "primary closes (force limited)", "gripper"))
+
+    # 4-5. lift, then carry to the transfer pose (object attached to the primary)
+    attach = ("primary", q_grasp, object_points)
+    up_T = translate_along(pick.T_b1_g, up, HANDOVER_LIFT)
+    # straight up off the table: the object rests on it at the start, so it is checked by itself (its
+    # points along the motion against the map) rather than attached (it would touch the table at once)
+    lift_moves = np.stack([np.eye(4)] * 7)
+    lift_moves[:, :3, 3] = np.linspace(0.0, HANDOVER_LIFT, 7)[:, None] * up
+    problems = motion.object_clear(lift_moves, up=up)
+    if problems:
+        raise PlanFailure("validation", "lift: " + problems[0])
+    with motion.context("cut", openings={"primary": cw_g}):
+        tr = motion.cartesian({"primary": (pick.T_b1_g, up_T)}, q)["primary"]
+    plan.add(Phase("lift", {"primary": _jt(tr.times, tr.q, CLOSED)}, f"lifted {HANDOVER_LIFT * 100:.0f} cm",
+                   "cartesian"))
+    q, _ = plan.end_state()
+    with motion.context("attached", openings={"primary": cw_g}, attach=attach):
+        sols = _goal_ik(motion, "primary", gt.T_b1_g, [gt.q, q["primary"]])
+        tr = motion.plan_free(["primary"], q, [{"primary": s} for s in sols[:4]])["primary"]
+    plan.add(Phase("transfer", {"primary": _jt(tr.times, tr.q, CLOSED)}, "object carried to the transfer pose",
+                   "ompl"))
+
+    # 6-8. the secondary takes it
+    q, _ = plan.end_state()
+    pre_rec = _pre(rec)
+    with motion.context("attached", openings={"primary": cw_g, "secondary": wr}, attach=attach):
+        sols = _goal_ik(motion, "secondary", pre_rec, [rec.q_pre, q_start["secondary"], rec.q])
+        tr = motion.plan_free(["secondary"], q, [{"secondary": s} for s in sols[:4]])["secondary"]
+    plan.add(Phase("receive-reach", {"secondary": _jt(tr.times, tr.q, _ramp(tr.times, width_start["secondary"], wr))},
+                   "secondary to its pre-grasp at the transfer pose", "ompl"))
+    q, _ = plan.end_state()
+    with motion.context("cut", openings={"primary": cw_g, "secondary": wr}):
+        tr = motion.cartesian({"secondary": (pre_rec, rec.T_b1_g)}, q)["secondary"]
+    plan.add(Phase("receive-approach", {"secondary": _jt(tr.times, tr.q, wr)}, "secondary's straight approach",
+                   "cartesian"))
+    q, _ = plan.end_state()
+    plan.add(Phase("receive-grasp", {"secondary": _still(q["secondary"], wr, CLOSED)},
+                   "secondary closes (force limited)", "gripper"))
+
+    # 9-11. the primary lets go and backs off; the secondary holds (checked)
+    q, _ = plan.end_state()
+    plan.add(Phase("release", {"primary": _still(q["primary"], CLOSED, wg)}, "primary opens", "gripper"))
+    q, _ = plan.end_state()
+    held_pts = object_points @ choice.T_move[:3, :3].T + choice.T_move[:3, 3]
+    held = ("secondary", q["secondary"], held_pts)
+    tr, err, dist, how = None, None, 0.0, ""
+    for how, direction in _retreat_directions(gt.T_b1_g, up):
+        # near the reach limit, back off less far: the largest distance that is reachable and leaves the
+        # open fingers clear of the object (now held by the secondary)
+        for dist in np.arange(gt.pre_dist, 0.045, -0.01):
+            back = translate_along(gt.T_b1_g, direction, dist)
+            try:
+                with motion.context("cut", openings={"primary": wg, "secondary": cw_r}):
+                    tr = motion.cartesian({"primary": (gt.T_b1_g, back)}, q)["primary"]
+                with motion.context("attached", openings={"primary": wg, "secondary": cw_r}, attach=held):
+                    why = motion.valid({"primary": tr.q[-1], "secondary": q["secondary"]})
+                if why:
+                    raise PlanFailure("validation", f"after backing off {dist * 100:.0f} cm ({how}) the primary "
+                                                    f"still touches the object: {why[0]}")
+                break
+            except PlanFailure as e:
+                tr, err = None, e
+        if tr is not None:
+            break
+    if tr is None:
+        raise err
+    plan.add(Phase("retreat", {"primary": _jt(tr.times, tr.q, wg)},
+                   f"primary backs off {dist * 100:.0f} cm ({how})", "cartesian"))
+    # the primary goes back to its start; the object, now in the secondary's gripper, is an obstacle
+    q, _ = plan.end_state()
+    with motion.context("attached", openings={"primary": wg, "secondary": cw_r}, attach=held):
+        tr = motion.plan_free(["primary"], q, [{"primary": q_start["primary"]}])["primary"]
+    plan.add(Phase("home", {"primary": _jt(tr.times, tr.q, wg)}, "primary back to its start pose", "ompl"))
+    q, _ = plan.end_state()
+    plan.add(Phase("hold", {"secondary": _jt([0.0, HOLD_S], np.stack([q["secondary"]] * 2), CLOSED)},
+                   f"secondary holds the object alone for {HOLD_S:g} s", "hold", check="handover"))
+    return plan

@@ -1,0 +1,137 @@
+"""Run a :class:`TaskPlan` in the PyBullet preview world and judge it physically.
+
+The world holds both arms (secondary at the calibrated ``T_b1_b2``), the table fitted to the cloud and one
+convex body per segmented object. With ``truth`` (synthetic scenes) the true objects and the true
+secondary base replace them and the estimated bodies are drawn as ghosts: the same plan is then judged
+against reality. The plan runs phase by phase, exactly as :meth:`TaskPlan.timeline` lays it out; a key
+frame is rendered at the end of every phase; the phases that carry a ``check`` are judged with a
+:class:`~bimanual_app.simulation.HoldMonitor`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bimanual_app.simulation import (HoldMonitor, Recorder, build_world, default_camera, estimated_shapes,
+                                     table_from_segments, truth_shapes)
+
+from ._plan import TaskPlan
+
+__all__ = ["PreviewResult", "preview_plan", "CHECKS"]
+
+# check name -> (arms that must hold, exclusive, rise m, hold s)
+CHECKS = {
+    "joint-lift": ({"primary", "secondary"}, False, 0.10, 2.0),
+    "lift": ({"primary"}, False, 0.10, 2.0),
+    "handover": ({"secondary"}, True, 0.10, 2.0),
+}
+
+
+@dataclass
+class PreviewResult:
+    """What the preview measured.
+
+    Attributes:
+        success: every check passed and no arm hit the table or the other arm.
+        reason: one sentence.
+        checks: per checked phase: the verdict (ok, held_s, max_rise, detail).
+        contacts: unexpected contacts seen (``primary-secondary``, ``primary-table``...).
+        tracking_error: per phase, the largest joint error at the phase's end (rad).
+        sim_time: simulated seconds; wall_time: seconds it took.
+        recorder: the frames (GIF and key frames are written by the caller).
+        world_truth: whether the world was the ground truth.
+    """
+
+    success: bool
+    reason: str
+    checks: dict = field(default_factory=dict)
+    contacts: list = field(default_factory=list)
+    tracking_error: dict = field(default_factory=dict)
+    object_mass: float | None = None
+    sim_time: float = 0.0
+    wall_time: float = 0.0
+    recorder: Recorder | None = None
+    world_truth: bool = False
+    warnings: list = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        return {"success": self.success, "reason": self.reason, "checks": self.checks, "contacts": self.contacts,
+                "tracking_error_rad": self.tracking_error, "object_mass_kg": self.object_mass,
+                "sim_time_s": round(self.sim_time, 3), "wall_time_s": round(self.wall_time, 3),
+                "world": "ground truth" if self.world_truth else "estimate", "warnings": self.warnings}
+
+
+def preview_plan(plan: TaskPlan, inputs, robot, object_id: int, truth: bool = False, gui: bool = False,
+                 record: bool = True, frame_size: tuple[int, int] = (320, 240), fps: float = 10.0,
+                 log=None) -> PreviewResult:
+    """Simulate ``plan`` with physics and judge it (see module notes). ``log(str)`` gets a line per phase."""
+    t_wall = time.perf_counter()
+    table = table_from_segments(inputs.points, inputs.labels, inputs.seg_extras)
+    est, warnings = estimated_shapes(inputs.points, inputs.labels, table)
+    T_b1_b2 = inputs.T_b1_b2
+    true_shapes = None
+    if truth:
+        gt = inputs.scene.ground_truth
+        true_shapes = truth_shapes(gt.objects)
+        T_b1_b2 = gt.T_b1_b2
+    focus = est[object_id].T_b1_o[:3, 3] if object_id in est else None
+    rec = Recorder(*frame_size, fps=fps, camera=default_camera(T_b1_b2, focus)) if record else None
+    world, physical = build_world(robot, T_b1_b2, table, est, true_shapes, gui=gui, recorder=rec)
+    try:
+        for arm, q in plan.q_start.items():
+            world.arms[arm].reset(q, plan.width_start[arm])
+        world.hold(0.2)
+        obj = physical.get(object_id)
+        if obj is None:
+            why = ("no true object near the estimated one: the segment is not a real object" if truth
+                   else f"object {object_id} has no collision body ({'; '.join(warnings) or 'no points'})")
+            return PreviewResult(False, why, warnings=warnings, world_truth=truth,
+                                 wall_time=time.perf_counter() - t_wall)
+        if rec is not None:
+            rec.keyframe("start")
+        mon = HoldMonitor(world, obj, grip=plan.info.get("grip"))
+        world.add_listener(mon)
+        contacts: set[str] = set()
+        checks: dict = {}
+        tracking: dict = {}
+
+        def watch(w):
+            for a, b in w.arm_contacts():
+                contacts.add(f"{a}-{b}")
+
+        world.add_listener(watch)
+        phase_start = {}
+        for k, ph in enumerate(plan.phases):
+            phase_start[ph.name] = world.time
+            trs = plan.phase_trajectories(k)
+            world.run_plan(trs)
+            tracking[ph.name] = float(max(np.max(np.abs(world.arms[a].q() - tr.q[-1])) for a, tr in trs.items()))
+            if rec is not None:
+                rec.keyframe(ph.name)
+            if log is not None:
+                log(f"  preview {k + 1}/{len(plan.phases)} {ph.name}: {ph.duration:.1f} s simulated")
+            if ph.check:
+                arms, exclusive, rise, hold_s = CHECKS[ph.check]
+                # judged over the checked phase only (a hold phase of >= hold_s after the lift / release)
+                v = mon.lifted_and_held(arms, rise=rise, hold_s=hold_s, since=phase_start[ph.name],
+                                        exclusive=exclusive)
+                checks[ph.name] = {"check": ph.check, "ok": v.ok, "held_s": round(v.held_s, 3),
+                                   "max_rise_m": round(v.max_rise, 4), "detail": v.detail}
+        failed = [f"{n}: {c['detail']}" for n, c in checks.items() if not c["ok"]]
+        if not checks:
+            failed.append("the plan has no success check")
+        bad_contacts = sorted(contacts)
+        if failed:
+            reason = "; ".join(failed)
+        elif bad_contacts:
+            reason = f"unexpected contact during the motion: {', '.join(bad_contacts)}"
+        else:
+            reason = "; ".join(f"{n}: {c['detail']}" for n, c in checks.items())
+        ok = not failed and not bad_contacts
+        return PreviewResult(ok, reason, checks, bad_contacts, tracking, obj.shape.mass, world.time,
+                             time.perf_counter() - t_wall, rec, truth, warnings)
+    finally:
+        world.close()

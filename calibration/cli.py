@@ -1,0 +1,131 @@
+"""``bijcr calibrate SCENE --out DIR``: Bi-JCR calibration of both arms from the scene's reconstruction."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+HELP = "calibrate both wrist cameras, the metric scale and the second base from SCENE/reconstruction.npz"
+DESCRIPTION = (
+    "Bi-JCR joint calibration from SCENE/reconstruction.npz and the arms' ee_poses.csv: both hand-eye transforms "
+    "(T_e1_c1, T_e2_c2), the reconstruction's metric scale, T_b1_w, T_b2_w and the second base T_b1_b2, each with "
+    "a 1-sigma uncertainty. Writes DIR/calibration.json, DIR/scene_b1.ply (metric cloud in b1), "
+    "DIR/calibration.png and ROS exports under DIR/ros/. Methods: absolute (default: joint refinement on absolute "
+    "poses, outlier views dropped, robust loss), paper (the paper's closed form + gradient refinement), "
+    "paper-norefine (closed form only). Ground truth, when present, is only used to print an evaluation."
+)
+METHODS = ("absolute", "paper", "paper-norefine")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scene", help="scene folder (holds scene.yaml and reconstruction.npz)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder (created)")
+    p.add_argument("--method", choices=METHODS, default="absolute", help="solver (default: absolute)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--reject-outliers", dest="reject", action="store_true", default=None,
+                   help="find and drop badly registered views (default for absolute)")
+    g.add_argument("--no-reject-outliers", dest="reject", action="store_false",
+                   help="keep every registered view (default for paper methods)")
+    p.add_argument("--no-robust", action="store_true", help="absolute: plain least squares instead of the soft_l1 loss")
+    p.add_argument("--noise", nargs=2, type=float, metavar=("DEG", "MM"),
+                   help="expected camera-pose noise of one view (rotation deg, position mm); default: estimated")
+    p.add_argument("--alpha", type=float, default=0.5, help="paper: rotation weight of the refinement loss (default 0.5)")
+    p.add_argument("--pairs", choices=("all", "consecutive"), default="all",
+                   help="motion pairs: all i<j (default) or consecutive only (the paper's printed form)")
+    p.add_argument("--uncertainty", choices=("jacobian", "jackknife", "none"), default="jacobian",
+                   help="uncertainty estimator (default jacobian)")
+    p.add_argument("--allow-degenerate", action="store_true",
+                   help="solve a degenerate capture anyway (with warnings) instead of stopping")
+    p.add_argument("--conf-threshold", type=float, default=None,
+                   help="keep point-map points with conf above this (default: 0.2 x median confidence)")
+    p.add_argument("--no-figure", action="store_true", help="skip calibration.png")
+    p.add_argument("--quiet", action="store_true", help="print only errors and the output folder")
+
+
+def _fmt_vec(v, unit: str, k: float = 1.0) -> str:
+    return "[" + ", ".join(f"{k * x:+.2f}" for x in v) + f"] {unit}"
+
+
+def summary(result, scene) -> list[str]:
+    """Human-readable lines: each value with its 1-sigma uncertainty."""
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    u = result.uncertainty or {}
+    lines = [f"method {result.method}"]
+    s = f"scale    {result.scale:.5f}"
+    if "scale" in u:
+        s += f"  +- {u['scale']['std']:.5f} ({u['scale']['percent']:.2f}%)"
+    lines.append(s + "   (metric = scale * reconstruction units)")
+    for key in ("T_e1_c1", "T_e2_c2", "T_b1_b2"):
+        T = getattr(result, key)
+        rpy = np.rad2deg(Rotation.from_matrix(T[:3, :3]).as_euler("xyz"))
+        line = f"{key}  t {_fmt_vec(T[:3, 3], 'mm', 1000)}"
+        if key in u:
+            line += f" +- {_fmt_vec(u[key]['translation_mm'], 'mm')}"
+        line += f";  rpy {_fmt_vec(rpy, 'deg')}"
+        if key in u:
+            line += f" +- {u[key]['rotation_deg']:.3f} deg"
+        lines.append(line)
+    for arm in scene.arms:
+        used, dropped = result.views_used[arm.name], result.views_dropped[arm.name]
+        line = f"{arm.name}: {len(used)} of {len(arm)} views used"
+        if dropped:
+            line += "; dropped " + "; ".join(f"{d['image']} ({d['reason']})" for d in dropped)
+        lines.append(line)
+    r = result.residuals
+    lines.append(f"AX=XB residuals: rotation {r['rotation_rad']:.4f} rad, translation {1000 * r['translation_m']:.2f} mm "
+                 f"(noise per view: {result.noise['rotation_deg']:.2f} deg, {result.noise['translation_mm']:.1f} mm, "
+                 f"{result.noise['source']})")
+    return lines
+
+
+def evaluation_lines(result, gt) -> list[str]:
+    from ._evaluate import calibration_errors
+
+    e = calibration_errors(result.T_e1_c1, result.T_e2_c2, result.scale, result.T_b1_b2, gt)
+    out = ["EVALUATION against ground_truth.yaml (not used by the solver):"]
+    for key in ("T_e1_c1", "T_e2_c2", "T_b1_b2"):
+        out.append(f"  {key}: {e[key][0]:.3f} deg, {e[key][1]:.2f} mm")
+    if e["scale_percent"] is not None:
+        out.append(f"  scale: {e['scale_percent']:.3f}%")
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    import time
+    from pathlib import Path
+
+    t0 = time.perf_counter()
+    from bimanual_app.scene import load_scene
+
+    from . import CalibrationOptions, calibrate, write_outputs
+
+    def log(msg: str) -> None:
+        if not args.quiet:
+            print(f"[{time.perf_counter() - t0:5.2f} s] calibrate: {msg}", file=sys.stderr)
+
+    try:
+        opts = CalibrationOptions(
+            alpha=args.alpha, pairs=args.pairs, reject_outliers=args.reject, robust=not args.no_robust,
+            noise_rot_deg=args.noise[0] if args.noise else None, noise_trans_mm=args.noise[1] if args.noise else None,
+            on_degenerate="warn" if args.allow_degenerate else "raise", uncertainty=args.uncertainty)
+    except ValueError as e:
+        print(f"bijcr calibrate: {e}", file=sys.stderr)
+        return 2
+    scene = load_scene(args.scene)
+    log(f"loaded scene '{scene.name}'")
+    result = calibrate(scene, method=args.method, options=opts)
+    log(f"solved in {result.info['time_total_s']:.3f} s")
+    files = write_outputs(Path(args.out), scene, result, conf_threshold=args.conf_threshold,
+                          figure=not args.no_figure, log=log)
+    if not args.quiet:
+        print("\n".join(summary(result, scene)))
+        for w in result.warnings:
+            print(f"warning: {w}")
+        if scene.ground_truth is not None:
+            print("\n".join(evaluation_lines(result, scene.ground_truth)))
+        print("wrote " + ", ".join(sorted(files)) + f" in {args.out}")
+    else:
+        print(args.out)
+    return 0

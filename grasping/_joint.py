@@ -1,0 +1,120 @@
+"""Joint (two-arm) grasps: one grasp per arm, on opposite sides of the object, balanced about its centre.
+
+Two kinds of pair:
+
+- ``push``: two push contacts (``_push``) on opposite faces of the object's box, approaches opposed, at
+  heights within ``max_height_gap``: the grippers squeeze the object between them along a line through
+  its centre. For objects wider than the stroke.
+- ``pinch``: two antipodal grasps at the two ends of a long object, on opposite sides of the centre along
+  its long axis, far enough apart that the grippers keep ``gap`` between them.
+
+A pair is kept when the primary reaches its grasp, the secondary reaches its own, the grippers do not
+come within ``gap`` of each other, and the two arms in those configurations do not collide (arm against
+arm). Balance is the horizontal distance from the object's centre to the midpoint of the two contact
+centres, relative to half their distance (0 = perfectly balanced); pairs above ``max_imbalance`` are
+dropped. Score: the mean of the two grasp scores, less half the imbalance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._arms import ArmGrasps, TwoArmCheck
+from ._collision import GripperCollider, grippers_collide
+from ._objects import ObjectGeometry, Support
+
+__all__ = ["JointPair", "joint_pairs"]
+
+
+@dataclass
+class JointPair:
+    """A two-arm grasp: indices into the primary's and the secondary's reachable grasps."""
+
+    kind: str
+    i_primary: int
+    i_secondary: int
+    imbalance: float
+    separation: float
+    score: float
+
+
+def _contact_centres(ag: ArmGrasps) -> np.ndarray:
+    g = ag.grasps
+    if "contact" in g.extra:  # push contacts: where the fingertips meet the face
+        return g.extra["contact"]
+    return g.T_b1_g[:, :3, 3] - g.T_b1_g[:, :3, 2] * g.depth[:, None]
+
+
+def joint_pairs(geo: ObjectGeometry, support: Support, primary: ArmGrasps, secondary: ArmGrasps,
+                collider: GripperCollider, check: TwoArmCheck | None, max_pairs: int = 5, gap: float = 0.02,
+                max_imbalance: float = 0.25, max_checks: int = 60, max_height_gap: float = 0.015
+                ) -> tuple[list[JointPair], dict]:
+    """Balanced, reachable, collision-free pairs (best first) from each arm's reachable grasps of one kind."""
+    stats = {"candidates": 0, "balanced": 0, "grippers_apart": 0, "arms_apart": 0}
+    if len(primary) == 0 or len(secondary) == 0:
+        return [], stats
+    kind = primary.grasps.kind
+    up = support.up
+    c1, c2 = _contact_centres(primary), _contact_centres(secondary)
+    z1, z2 = primary.grasps.T_b1_g[:, :3, 2], secondary.grasps.T_b1_g[:, :3, 2]
+
+    def horiz(v):
+        return v - np.outer(v @ up, up) if v.ndim == 2 else v - (v @ up) * up
+
+    cand = []
+    for i in range(len(primary)):
+        for j in range(len(secondary)):
+            d = horiz(c2[j] - c1[i])
+            sep = float(np.linalg.norm(d))
+            if sep < 1e-6:
+                continue
+            mid = horiz(0.5 * (c1[i] + c2[j]) - geo.centre)
+            imb = float(np.linalg.norm(mid)) / (0.5 * sep)
+            if kind == "push":
+                f1, f2 = primary.grasps.extra["face"][i], secondary.grasps.extra["face"][j]
+                if f1[0] != f2[0] or f1[1] != -f2[1]:
+                    continue  # not opposite faces
+                dh = abs(float((c1[i] - c2[j]) @ up))
+                if dh > max_height_gap:
+                    continue  # not at one height: the squeeze would twist the object
+                zh1, zh2 = horiz(z1[i]), horiz(z2[j])
+                if zh1 @ zh2 > -0.9 * np.linalg.norm(zh1) * np.linalg.norm(zh2):
+                    continue  # approaches not opposed
+                # for a squeeze the lateral offset of the line from the centre matters, not where along it
+                dn = d / sep
+                imb = float(np.linalg.norm(mid - (mid @ dn) * dn)) / (0.5 * sep)
+            else:
+                axis = geo.T_b1_box[:3, 0]
+                s1, s2 = (c1[i] - geo.centre) @ axis, (c2[j] - geo.centre) @ axis
+                if s1 * s2 >= 0:
+                    continue  # same side of the centre
+            stats["candidates"] += 1
+            if imb > max_imbalance:
+                continue
+            stats["balanced"] += 1
+            score = 0.5 * (primary.grasps.score[i] + secondary.grasps.score[j]) - 0.5 * imb
+            if kind == "push":
+                score -= 0.5 * dh / max_height_gap * 0.2  # a squeeze line off the horizontal twists a little
+            cand.append((score, i, j, imb, sep))
+    cand.sort(key=lambda c: -c[0])
+    out: list[JointPair] = []
+    for score, i, j, imb, sep in cand[:max_checks]:
+        w1, w2 = primary.grasps.width[i], secondary.grasps.width[j]
+        if grippers_collide(collider, primary.grasps.T_b1_g[i], w1, secondary.grasps.T_b1_g[j], w2, margin=gap,
+                            swept1=True, swept2=True):
+            continue
+        stats["grippers_apart"] += 1
+        if check is not None:
+            ok, _ = check(primary.q[i], w1, secondary.q[j], w2)
+            if not ok:
+                continue
+            ok, _ = check(primary.q_pre[i], w1, secondary.q_pre[j], w2)
+            if not ok:
+                continue
+        stats["arms_apart"] += 1
+        out.append(JointPair(kind, i, j, imb, sep, float(score)))
+        if len(out) >= max_pairs:
+            break
+    return out, stats

@@ -1,0 +1,232 @@
+"""Per-object geometry for grasping: the support plane, a gravity-aligned box, surface points with normals.
+
+The table is the plane the objects stand on: the segments file's ``table_plane`` when it has one, else a
+RANSAC plane (Open3D ``segment_plane``) through the points labelled -1, else b1's xy plane under the
+lowest object point. Its normal ``up`` points to the side the objects are on.
+
+Each object gets a box aligned with gravity: the minimum-area rectangle (OpenCV ``minAreaRect``) of its
+points projected on the table, from the table up to its highest point (objects rest on the table, whose
+cloud usually lacks their bottom face). The box centre is the estimate of the centre of mass used for
+balance and centring. Surface points are voxel-downsampled and get normals from Open3D
+(``estimate_normals``), oriented away from the box's vertical axis.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bimanual_app.io_utils import InputError, Problem
+
+__all__ = ["Support", "ObjectGeometry", "estimate_support", "object_geometry", "check_graspable", "closed_geometry",
+           "complete_by_symmetry"]
+
+
+@dataclass(frozen=True)
+class Support:
+    """The table plane: points p with ``up @ p = height`` (up (3,) unit, pointing to the objects' side)."""
+
+    up: np.ndarray
+    height: float
+    source: str
+
+    def elevation(self, P: np.ndarray) -> np.ndarray:
+        """Height (...,) of points (..., 3) above the table."""
+        return np.asarray(P) @ self.up - self.height
+
+
+@dataclass
+class ObjectGeometry:
+    """One segmented object.
+
+    Attributes:
+        id: its label.
+        n_points: raw points in the segment.
+        points: (M, 3) voxel-downsampled surface points in b1.
+        normals: (M, 3) unit outward normals.
+        T_b1_box: (4, 4) gravity-aligned box: z = up, x = the box's longer horizontal side, origin = centre.
+        extent: (3,) box side lengths along its x, y, z (m).
+        centre: (3,) box centre in b1 (the estimate of the centre of mass).
+        voxel: the downsampling voxel size (m).
+        observed: (M,) bool, False for points added by symmetric completion (not seen by a camera).
+    """
+
+    id: int
+    n_points: int
+    points: np.ndarray
+    normals: np.ndarray
+    T_b1_box: np.ndarray
+    extent: np.ndarray
+    centre: np.ndarray
+    voxel: float
+    observed: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.observed is None:
+            self.observed = np.ones(len(self.points), dtype=bool)
+
+    @property
+    def narrowest(self) -> float:
+        """The smallest side of the box (m)."""
+        return float(np.min(self.extent))
+
+
+def _perp_basis(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    a = np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = a - (a @ up) * up
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(up, e1)
+
+
+def estimate_support(points: np.ndarray, labels: np.ndarray, table_plane: np.ndarray | None = None,
+                     seed: int = 0) -> Support:
+    """The table plane under the objects (see the module docstring). points (N, 3), labels (N,)."""
+    obj = points[labels >= 0]
+    ref = obj.mean(axis=0) if len(obj) else points.mean(axis=0)
+
+    def oriented(n: np.ndarray, d: float, src: str) -> Support:
+        n = np.asarray(n, dtype=np.float64)
+        s = 1.0 / np.linalg.norm(n)
+        n, d = n * s, float(d) * s
+        if n @ ref + d < 0:
+            n, d = -n, -d
+        return Support(n, -d, src)
+
+    if table_plane is not None:
+        return oriented(table_plane[:3], table_plane[3], "segments table_plane")
+    table = points[labels < 0]
+    if len(table) >= 50:
+        import open3d as o3d
+
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(table))
+        o3d.utility.random.seed(seed)
+        (a, b, c, d), inl = pc.segment_plane(distance_threshold=0.005, ransac_n=3, num_iterations=200)
+        n = np.array([a, b, c])
+        # a plane through the background that is not roughly horizontal in b1 is not the table
+        if len(inl) >= 0.3 * len(table) and abs(n[2]) / np.linalg.norm(n) > 0.8:
+            return oriented(n, d, "RANSAC plane of the table points")
+    z0 = float(obj[:, 2].min()) if len(obj) else float(points[:, 2].min())
+    return Support(np.array([0.0, 0.0, 1.0]), z0, "b1 xy plane under the lowest object point")
+
+
+def object_geometry(obj_id: int, P: np.ndarray, support: Support, voxel: float = 0.003,
+                    normal_radius: float | None = None, complete: bool = True) -> ObjectGeometry:
+    """Gravity-aligned box, downsampled points and outward normals of one object's points P (M, 3);
+    with ``complete``, unseen sides filled by :func:`complete_by_symmetry`."""
+    import cv2
+    import open3d as o3d
+
+    up = support.up
+    e1, e2 = _perp_basis(up)
+    xy = np.stack([P @ e1, P @ e2], axis=1)
+    (_, _), (w, h), ang = cv2.minAreaRect(xy.astype(np.float32))
+    a = np.deg2rad(ang)
+    u = np.cos(a) * e1 + np.sin(a) * e2
+    v = np.cross(up, u)
+    if h > w:  # x along the longer side
+        u, v = v, -u
+    # extents from trimmed ranges: a few noisy points must not make an object look wider than it is
+    q = (0.5, 99.5) if len(P) >= 200 else (0.0, 100.0)
+    lo_u, hi_u = np.percentile(P @ u, q)
+    lo_v, hi_v = np.percentile(P @ v, q)
+    elev = support.elevation(P)
+    top = float(np.percentile(elev, q[1]))
+    bottom = max(0.0, float(np.percentile(elev, q[0])))
+    bottom = 0.0 if bottom < 0.02 else bottom  # resting on the table: the box reaches down to it
+    centre = 0.5 * (lo_u + hi_u) * u + 0.5 * (lo_v + hi_v) * v + (support.height + 0.5 * (top + bottom)) * up
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = u, v, up, centre
+    extent = np.maximum(np.array([hi_u - lo_u, hi_v - lo_v, top - bottom]), 1e-6)
+
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
+    pc = pc.voxel_down_sample(voxel)
+    r = normal_radius or max(3.0 * voxel, 0.008)
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=r, max_nn=30))
+    Q = np.asarray(pc.points, dtype=np.float64)
+    N = np.asarray(pc.normals, dtype=np.float64)
+    # outward: away from the box's vertical axis for side faces, up for the top. For convex shapes this
+    # is exact; Open3D's consistent-tangent-plane orientation is slower and no better on open scans.
+    rel = Q - centre
+    radial = rel - np.outer(rel @ up, up)
+    top_like = np.abs(N @ up) > 0.7
+    ref = np.where(top_like[:, None], np.outer(np.sign(rel @ up + 1e-12), up), radial)
+    flip = np.einsum("ij,ij->i", N, ref) < 0
+    N[flip] *= -1
+    geo = ObjectGeometry(int(obj_id), len(P), Q, N, T, extent, centre, voxel)
+    return complete_by_symmetry(geo, support) if complete else geo
+
+
+def complete_by_symmetry(geo: ObjectGeometry, support: Support, gap: float | None = None) -> ObjectGeometry:
+    """Fill the sides the cameras did not see by turning the seen sides half a turn about the object's
+    vertical axis (the centre of its box).
+
+    A cloud of an object on a table usually shows it from one side: an antipodal pair needs the far side
+    too. Objects on a table are mostly symmetric about a vertical axis under a half turn (boxes, cylinders,
+    cans, cups without their handle), so the seen sides, turned about the centre of the box (whose footprint
+    comes from all the points, the top included), stand in for the unseen ones (Bohg et al., "Mind the
+    gap", ICRA 2011, complete by mirroring). Only turned points farther than ``gap`` from every seen point
+    are added (they fill holes; they never replace what was seen), and they are marked ``observed=False``:
+    the collision checks treat them as solid, the antipodal score trusts them less.
+    """
+    from scipy.spatial import cKDTree
+
+    gap = 2.5 * geo.voxel if gap is None else gap
+    up = support.up
+    side = np.abs(geo.normals @ up) < 0.7
+    if not side.any():
+        return geo
+    R = 2.0 * np.outer(up, up) - np.eye(3)  # half a turn about the vertical axis
+    Q = (geo.points[side] - geo.centre) @ R.T + geo.centre
+    Nq = geo.normals[side] @ R.T
+    d, _ = cKDTree(geo.points).query(Q, k=1)
+    new = d > gap
+    if not new.any():
+        return geo
+    return ObjectGeometry(geo.id, geo.n_points, np.concatenate([geo.points, Q[new]]), np.concatenate([geo.normals, Nq[new]]),
+                          geo.T_b1_box, geo.extent, geo.centre, geo.voxel,
+                          np.concatenate([geo.observed, np.zeros(int(new.sum()), dtype=bool)]))
+
+
+def check_graspable(geo: ObjectGeometry, min_width: float, max_width: float, source: str = "segments",
+                    min_points: int = 30) -> list[Problem]:
+    """Problems that rule out every single-arm grasp of ``geo`` ([] when it may be graspable).
+
+    ``min_width``: narrowest object the fingers can resolve (m); ``max_width``: widest contact width the
+    stroke takes with clearance (m).
+    """
+    field = f"object {geo.id}"
+    if geo.n_points < min_points:
+        return [Problem(source, field, f"segment has {geo.n_points} point(s); at least {min_points} are needed to place fingers",
+                        "check the segmentation (an empty or speck segment), or capture the object from more views")]
+    ext = geo.extent
+    if float(np.max(ext)) < min_width:
+        return [Problem(source, field, f"object is {float(np.max(ext)) * 1000:.1f} mm across at most: narrower than the"
+                        f" {min_width * 1000:.1f} mm the fingers can resolve", "too small to grasp; remove it from the segments")]
+    if float(np.max(ext[:2])) < min_width:
+        return [Problem(source, field, f"object is {float(np.max(ext[:2])) * 1000:.1f} mm wide: narrower than the"
+                        f" {min_width * 1000:.1f} mm the fingers can resolve", "too thin to grasp from the side or above")]
+    if float(np.min(ext)) > max_width:
+        return [Problem(source, field, f"object is {float(np.min(ext)) * 1000:.0f} mm across at its narrowest: wider than"
+                        f" the gripper's stroke allows ({max_width * 1000:.0f} mm with clearance)",
+                        "no single-arm grasp; lift it with both arms (joint grasp)")]
+    return []
+
+
+def closed_geometry(geo: ObjectGeometry, support: Support) -> ObjectGeometry:
+    """The object with its unseen bottom filled in: its points projected onto its base (normals down).
+
+    For grasps on an object held in the air (a hand-over), where a gripper may come from below: the cloud
+    of an object standing on the table has no bottom face, and fingers must not pass through it.
+    """
+    up = support.up
+    base = support.height + max(0.0, float(support.elevation(geo.T_b1_box[:3, 3])) - 0.5 * float(geo.extent[2]))
+    Q = geo.points - np.outer(geo.points @ up - base, up)
+    # keep one point per voxel of the footprint
+    key = np.floor(Q / geo.voxel).astype(np.int64)
+    _, first = np.unique(key, axis=0, return_index=True)
+    Q = Q[np.sort(first)]
+    P = np.concatenate([geo.points, Q])
+    N = np.concatenate([geo.normals, np.broadcast_to(-up, Q.shape)])
+    return ObjectGeometry(geo.id, geo.n_points + len(Q), P, N, geo.T_b1_box, geo.extent, geo.centre, geo.voxel,
+                          np.concatenate([geo.observed, np.zeros(len(Q), dtype=bool)]))

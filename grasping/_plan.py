@@ -1,0 +1,295 @@
+"""Grasp planning for a whole segmented scene: per object, single-arm grasps, joint pairs and a hand-over.
+
+For each object (label >= 0):
+
+1. its geometry (gravity-aligned box, surface points and normals) and the checks that rule out every
+   single-arm grasp (too few points, narrower than the fingers resolve, wider than the stroke);
+2. antipodal grasps against the rest of the scene map (``_antipodal``), then each arm's reach filter on
+   them, best first, in that arm's own base frame;
+3. its *mode*: ``joint`` when it is wider than the stroke, longer than ``large_extent`` or heavier (box
+   volume x ``density``) than one arm's ``payload``; ``single`` otherwise;
+4. for ``joint`` objects, two-arm pairs (``_joint``): push pairs on opposite faces and pinch pairs at the
+   two ends; for ``single`` objects with both arms known, a hand-over (``_handover``).
+
+Every grasp in the result has passed the collision checks, and -- when arms are given -- the reach
+filter of the arm it is listed for; nothing unchecked is returned.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from bimanual_app.io_utils import InputError, Problem
+
+from ._antipodal import GraspSet, SamplerParams, sample_grasps
+from ._arms import Arm, ArmGrasps, TwoArmCheck, reachable_by_group, reachable_grasps
+from ._collision import GripperCollider, SceneOctree
+from ._gripper import GripperModel
+from ._handover import Handover, HandoverParams, plan_handover
+from ._inputs import SceneCloud
+from ._joint import JointPair, joint_pairs
+from ._objects import ObjectGeometry, Support, check_graspable, closed_geometry, estimate_support, object_geometry
+from ._push import PushParams, push_contacts
+
+__all__ = ["PlanParams", "ObjectPlan", "GraspPlan", "plan_grasps", "plan_object"]
+
+
+@dataclass(frozen=True)
+class PlanParams:
+    """Scene-level parameters (metres, kilograms).
+
+    octree_resolution: voxel size of the scene map the gripper is checked against.
+    reach_tries / reach_want: grasps checked by each arm's reach filter, and enough reachable ones to stop.
+    large_extent: objects longer than this (horizontally) need two arms.
+    density, payload: mass estimate (box volume x density) and the most one arm lifts.
+    min_object_points: fewer points than this is an empty segment.
+    joint_for_all: also look for two-arm pairs on objects one arm can lift (when they are long enough).
+    handover: plan a hand-over for objects one arm can lift (needs both arms).
+    workspace_radius: background points farther than this from every base (horizontally) are dropped.
+    """
+
+    sampler: SamplerParams = SamplerParams()
+    push: PushParams = PushParams()
+    handover_params: HandoverParams = HandoverParams()
+    octree_resolution: float = 0.003
+    reach_tries: int = 40
+    push_tries_per_face: int = 30
+    push_want_per_face: int = 4
+    reach_want: int = 10
+    large_extent: float = 0.25
+    density: float = 400.0
+    payload: float = 1.2
+    min_object_points: int = 30
+    joint_for_all: bool = False
+    joint_min_extent: float = 0.15
+    handover: bool = True
+    max_joint_pairs: int = 5
+    workspace_radius: float = 1.0
+
+
+@dataclass
+class ObjectPlan:
+    """Everything planned for one object.
+
+    geometry: its ObjectGeometry (None for an empty segment). mode: ``"single"``, ``"joint"`` or ``"none"``.
+    problems: why single-arm (or all) grasps are impossible. notes: other messages for the user.
+    grasps: collision-free antipodal grasps, scored, best first (reach not yet applied).
+    reach: arm name -> ArmGrasps (the grasps that arm reaches). push: push contacts (joint objects) and
+    push_reach: arm name -> ArmGrasps of them. joint: list of (JointPair, source) with source "pinch"/"push".
+    handover: Handover or None. stats, timings: counts and seconds per stage.
+    """
+
+    id: int
+    geometry: ObjectGeometry | None
+    mode: str
+    problems: list = field(default_factory=list)
+    notes: list = field(default_factory=list)
+    grasps: GraspSet | None = None
+    reach: dict = field(default_factory=dict)
+    push: GraspSet | None = None
+    push_reach: dict = field(default_factory=dict)
+    joint: list = field(default_factory=list)
+    handover: Handover | None = None
+    free_grasps: GraspSet | None = None
+    mass_estimate: float = 0.0
+    stats: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+
+    def pair_grasps(self, pair: JointPair) -> tuple[ArmGrasps, ArmGrasps]:
+        """The primary's and the secondary's reachable grasp sets a joint pair indexes into."""
+        src = self.push_reach if pair.kind == "push" else self.reach
+        return src["primary"], src["secondary"]
+
+
+@dataclass
+class GraspPlan:
+    """The plan for a scene: the table, the arms used, and one ObjectPlan per object."""
+
+    support: Support
+    gripper: GripperModel
+    objects: list[ObjectPlan]
+    arms: list[str]
+    T_b1_b2: np.ndarray | None
+    params: PlanParams
+    timings: dict = field(default_factory=dict)
+
+
+def _log_default(msg: str) -> None:
+    pass
+
+
+def plan_object(k: int, cloud: SceneCloud, support: Support, gripper: GripperModel, collider: GripperCollider,
+                arms: dict[str, Arm] | None, T_b1_b2: np.ndarray | None, params: PlanParams,
+                source: str = "segments", log: Callable[[str], None] = _log_default) -> ObjectPlan:
+    """Plan grasps for object ``k`` of ``cloud`` (see the module docstring)."""
+    t0 = time.perf_counter()
+    mask = cloud.labels == k
+    n = int(mask.sum())
+    if n < params.min_object_points:
+        pr = Problem(source, f"object {k}", f"segment has {n} point(s); at least {params.min_object_points} are needed",
+                     "check the segmentation (an empty or speck segment), or capture the object from more views")
+        return ObjectPlan(k, None, "none", [pr])
+    geo = object_geometry(k, cloud.points[mask], support, voxel=params.sampler.ray_radius * 0.75)
+    plan = ObjectPlan(k, geo, "single")
+    sp = params.sampler
+    max_cw = sp.max_contact_width(gripper)
+    plan.problems = check_graspable(geo, max(sp.min_width, gripper.min_width + 2 * sp.min_clearance), max_cw, source,
+                                    params.min_object_points)
+    too_wide = any("wider than" in p.message for p in plan.problems)
+    mass = float(np.prod(geo.extent) * params.density)
+    plan.mass_estimate = mass
+    long_side = float(np.max(geo.extent[:2]))
+    if too_wide or long_side > params.large_extent or mass > params.payload:
+        plan.mode = "joint"
+        why = ("wider than the stroke" if too_wide else f"{long_side * 100:.0f} cm long" if long_side > params.large_extent
+               else f"about {mass:.1f} kg (box volume x {params.density:g} kg/m^3) > {params.payload:g} kg payload")
+        plan.notes.append(f"needs two arms: {why}")
+    if plan.problems and not too_wide:
+        plan.mode = "none"
+        return plan
+    # the rest of the scene near the object: all the swept gripper can touch (fingers, palm, approach)
+    others_pts = cloud.points[~mask]
+    others_pts = others_pts[np.linalg.norm(others_pts - geo.centre, axis=1) < 0.5 * float(np.linalg.norm(geo.extent)) + 0.3]
+    others = SceneOctree(others_pts, params.octree_resolution)
+    t1 = time.perf_counter()
+    hints = [a.reach.approach_hints(geo.centre) for a in (arms or {}).values() if hasattr(a.reach, "approach_hints")]
+    hints = np.concatenate(hints) if hints else None
+    if not too_wide:
+        plan.grasps, plan.stats["sampler"] = sample_grasps(geo, support, gripper, collider, others, sp,
+                                                           approach_hints=hints)
+        if len(plan.grasps) == 0:
+            plan.notes.append(f"no collision-free antipodal grasp among {plan.stats['sampler']['candidates']} candidates"
+                              f" ({plan.stats['sampler']['pairs']} antipodal contact pairs)")
+    else:
+        plan.grasps = GraspSet.empty(k)
+    plan.timings["sample"] = time.perf_counter() - t1
+    bound = dict(arms or {})
+    t1 = time.perf_counter()
+    for name, arm in bound.items():
+        plan.reach[name] = reachable_grasps(plan.grasps, arm, params.reach_tries, params.reach_want)
+    if bound:
+        plan.stats["reach"] = {n: {"reachable": len(a), "tried": a.tried, "why_not": a.reasons} for n, a in plan.reach.items()}
+    plan.timings["reach"] = time.perf_counter() - t1
+    if arms and plan.grasps is not None and len(plan.grasps) and not any(len(a) for a in plan.reach.values()):
+        reasons = {}
+        for a in plan.reach.values():
+            for r, c in a.reasons.items():
+                reasons[r] = reasons.get(r, 0) + c
+        top = max(reasons, key=reasons.get) if reasons else "unreachable"
+        plan.notes.append(f"none of the {len(plan.grasps)} collision-free grasps is reachable (most often: {top})")
+    two_arms = "primary" in bound and "secondary" in bound
+    check = None
+    if two_arms:
+        t1 = time.perf_counter()
+        robot = getattr(bound["primary"].reach, "robot", None)
+        if robot is not None:
+            check = TwoArmCheck(robot, gripper, bound["secondary"].T_b1_b)
+        if plan.mode == "joint" or (params.joint_for_all and long_side >= params.joint_min_extent):
+            pairs = []
+            plan.stats["push"] = {}
+            push = push_contacts(geo, support, gripper, collider, others, params.push, plan.stats["push"])
+            plan.push = push
+            if len(push):
+                for name, arm in bound.items():
+                    # the faces that look towards this arm's base first (the far faces are the other arm's)
+                    to_base = arm.T_b1_b[:3, 3] - push.extra["contact"]
+                    to_base -= np.outer(to_base @ support.up, support.up)
+                    to_base /= np.maximum(np.linalg.norm(to_base, axis=1, keepdims=True), 1e-9)
+                    facing = np.einsum("nk,nk->n", -push.extra["squeeze"], to_base) > 0.3
+                    plan.push_reach[name] = reachable_by_group(push, arm, push.extra["face"], params.push_tries_per_face,
+                                                               params.push_want_per_face, prefer=facing)
+                plan.stats["push_reach"] = {n: {"reachable": len(a), "tried": a.tried, "why_not": a.reasons}
+                                            for n, a in plan.push_reach.items()}
+                pp, plan.stats["joint_push"] = joint_pairs(geo, support, plan.push_reach["primary"],
+                                                           plan.push_reach["secondary"], collider, check,
+                                                           params.max_joint_pairs)
+                pairs += pp
+            if len(plan.grasps) and long_side >= params.joint_min_extent:
+                pp, plan.stats["joint_pinch"] = joint_pairs(geo, support, plan.reach["primary"], plan.reach["secondary"],
+                                                            collider, check, params.max_joint_pairs)
+                pairs += pp
+            pairs.sort(key=lambda p: -p.score)
+            plan.joint = pairs[: params.max_joint_pairs]
+            if plan.mode == "joint" and not plan.joint:
+                plan.notes.append("no balanced two-arm grasp that both arms reach without colliding"
+                                  f" ({len(push)} push contacts on its faces)")
+        plan.timings["joint"] = time.perf_counter() - t1
+        if plan.mode == "single" and params.handover and len(plan.reach.get("primary", [])):
+            t1 = time.perf_counter()
+            closed = closed_geometry(geo, support)
+            free_params = SamplerParams(**{**sp.__dict__, "full_circle": True})
+            plan.free_grasps, _ = sample_grasps(closed, support, gripper, collider, SceneOctree(np.zeros((0, 3))),
+                                                free_params)
+            plan.handover, plan.stats["handover"] = plan_handover(geo, support, plan.reach["primary"], plan.free_grasps,
+                                                                  bound, collider, check, params.handover_params)
+            if plan.handover is None:
+                plan.notes.append("no hand-over found: no transfer pose where the primary holds it and the secondary"
+                                  " reaches a grasp clear of the primary's fingers")
+            plan.timings["handover"] = time.perf_counter() - t1
+    elif arms is not None and "secondary" not in bound:
+        plan.notes.append("secondary arm unknown (no T_b1_b2): no joint grasps or hand-over")
+    if plan.mode == "single" and arms and not any(len(a) for a in plan.reach.values()):
+        plan.mode = "none" if plan.grasps is None or len(plan.grasps) == 0 else plan.mode
+    plan.timings["total"] = time.perf_counter() - t0
+    log(f"object {k}: {plan.mode}, {len(plan.grasps) if plan.grasps is not None else 0} grasps, "
+        + ", ".join(f"{a}: {len(g)} reachable" for a, g in plan.reach.items())
+        + (f", {len(plan.joint)} joint pair(s)" if plan.joint else "")
+        + (", hand-over found" if plan.handover is not None else "")
+        + f" ({plan.timings['total']:.2f} s)")
+    return plan
+
+
+def _workspace(cloud: SceneCloud, arms: dict[str, Arm] | None, radius: float) -> SceneCloud:
+    """The cloud without background points farther than ``radius`` (horizontally) from every arm base.
+
+    Object points are all kept (labels keep their meaning); far background (the floor and walls of a
+    room) only slows the collision maps down and can mislead the table fit.
+    """
+    bases = [np.zeros(3)] + ([a.T_b1_b[:3, 3] for a in arms.values()] if arms else [])
+    d = np.min([np.linalg.norm(cloud.points[:, :2] - b[:2], axis=1) for b in bases], axis=0)
+    keep = (cloud.labels >= 0) | (d <= radius)
+    if keep.all():
+        return cloud
+    return SceneCloud(cloud.points[keep], cloud.labels[keep], None if cloud.colors is None else cloud.colors[keep],
+                      cloud.table_plane, cloud.source)
+
+
+def plan_grasps(cloud: SceneCloud, gripper: GripperModel | None = None, arms: dict[str, Arm] | None = None,
+                T_b1_b2: np.ndarray | None = None, params: PlanParams = PlanParams(), objects: list[int] | None = None,
+                log: Callable[[str], None] = _log_default) -> GraspPlan:
+    """Plan grasps for every object of ``cloud`` (or the ids in ``objects``).
+
+    ``arms``: name -> Arm with reach filters (``make_arms``); None skips reachability (then the grasps are
+    only collision-checked, and no joint pairs or hand-overs are planned). Raises InputError when the
+    cloud has no object, or an id in ``objects`` is not in it.
+    """
+    from ._gripper import load_gripper
+
+    t0 = time.perf_counter()
+    src = cloud.source.get("segments", "segments")
+    present = cloud.object_ids
+    # the contract numbers objects 0..K-1: a missing id in that range is an empty segment
+    ids = list(range(max(present) + 1)) if present else []
+    if not ids:
+        raise InputError(Problem(src, "labels", "no object in the segments (every label is -1)",
+                                 "check the segmentation: it found only the table/background"))
+    if objects is not None:
+        missing = [o for o in objects if o not in present]
+        if missing:
+            raise InputError(Problem(src, "labels", f"object id(s) {missing} not in the segments (ids: {present})",
+                                     "pick ids from the segments file"))
+        ids = list(objects)
+    gripper = gripper or load_gripper("piper")
+    cloud = _workspace(cloud, arms, params.workspace_radius)
+    # the arms' collision maps: the whole scene, once (the reach filters leave the gripper's own shapes
+    # against the map to the sampler's exact checks, so the object being grasped can stay in the map)
+    arms = {name: a.for_scene(cloud.points) for name, a in arms.items()} if arms else arms
+    support = estimate_support(cloud.points, cloud.labels, cloud.table_plane)
+    collider = GripperCollider(gripper, params.sampler.approach)
+    plans = [plan_object(k, cloud, support, gripper, collider, arms, T_b1_b2, params, src, log) for k in ids]
+    return GraspPlan(support, gripper, plans, sorted(arms) if arms else [], T_b1_b2, params,
+                     {"total": time.perf_counter() - t0})

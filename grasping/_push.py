@@ -1,0 +1,234 @@
+"""Push contacts for two-arm lifts of objects wider than the stroke: the fingertips press a vertical face.
+
+An object too wide for one gripper (every side wider than the stroke) is lifted by two grippers pressing
+opposite faces, like two palms: the pair squeezes the object along a line through its centre, and friction
+at the fingertips carries the weight. One push contact is a gripper pose whose fingertips, closed into one
+pad, touch a vertical face of the object's gravity-aligned box:
+
+- z (approach) along the face's inward normal, or tilted down from it (``tilts``): the arm squeezes by
+  moving the gripper along the face normal (``extra["squeeze"]``), not along its approach, so a tilted
+  gripper presses the face with the edge of its fingertips; tilts let an arm that cannot point its
+  gripper horizontally near the table reach the face;
+- y (closing direction) along the face at a few rolls (the closed pad presses the same either way; the
+  roll is for the wrist's joint limits);
+- the way in from the pre-contact (``approach`` back along the face normal, or along the approach axis)
+  free of the object and the scene;
+- the fingertips on the face (the deepest fingertip corner touching the face plane, measured from the
+  face's own points), at the height of the centre or a little above it (then the object hangs below the
+  squeeze line and does not tip);
+- both fingertips must land inside the face on its points -- seen, or filled in by symmetric completion
+  (``_objects.complete_by_symmetry``; a face is often seen only in part) -- where a plane fitted to the
+  points around each lies within the friction cone of the face normal; or, on a planar face, between
+  its points (within the range they span; the face's own plane then gives the normal); fingertips not
+  on seen points scale the antipodal term down to half.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._antipodal import GraspSet
+from ._collision import GripperCollider, SceneOctree
+from ._gripper import GripperModel
+from ._objects import ObjectGeometry, Support
+
+__all__ = ["PushParams", "push_contacts"]
+
+
+@dataclass(frozen=True)
+class PushParams:
+    """Push contacts (metres, radians).
+
+    rolls: turns of the gripper about its approach (the closed pad is symmetric; for the arm's reach).
+    heights: contact heights above the box centre, as fractions of the box's half height (above the centre:
+        the object hangs below the squeeze line; higher is easier to reach for an arm on the table).
+    tilts: approach tilts down from horizontal (radians; negative: pointing slightly up).
+    press: how far past the face the fingertips are driven to squeeze (the grasp's ``depth`` is -press).
+    standoff: the gap kept for the collision check of the approach (the fingertips stop at the face).
+    pad_depth: points within this distance of the face plane count as under a pad.
+    min_pad_points: face points needed around each fingertip (within ``fit_radius``).
+    edge_margin: the pads stay this far inside the face's edges.
+    fit_radius: face points within this distance of a fingertip give the plane its normal is taken from.
+    face_rms: a face whose points fit a plane within this RMS (m) counts as planar: a fingertip may land on
+        it between seen points (inside the range they span) with the whole face's normal.
+    friction: fingertip friction coefficient (the tilt and normals must stay in its cone).
+    """
+
+    rolls: tuple[float, ...] = (0.0, np.pi / 2, np.pi / 4, -np.pi / 4)
+    heights: tuple[float, ...] = (0.3, 0.1, 0.5, 0.7)
+    tilts: tuple[float, ...] = (np.deg2rad(-15.0), 0.0, np.deg2rad(20.0), np.deg2rad(40.0), np.deg2rad(55.0),
+                                np.deg2rad(70.0), np.deg2rad(80.0))
+    press: float = 0.008
+    standoff: float = 0.006
+    pad_depth: float = 0.008
+    min_pad_points: int = 4
+    edge_margin: float = 0.005
+    fit_radius: float = 0.02
+    face_rms: float = 0.003
+    friction: float = 0.5
+    scene_margin: float = 0.004
+    approach: float = 0.09
+
+
+def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, collider: GripperCollider,
+                  others: SceneOctree, params: PushParams = PushParams(), stats: dict | None = None) -> GraspSet:
+    """Push contacts on the four vertical faces of the object's box (kind ``"push"``), scored, best first.
+
+    ``depth`` holds -press; ``contact_width`` the object's width between this face and the opposite one;
+    ``extra["face"]`` (n, 2) the box axis and side of the face; ``extra["squeeze"]`` (n, 3) the direction
+    the gripper presses in (the face's inward normal, horizontal); ``extra["contact"]`` (n, 3) the point
+    midway between the fingertips' contacts with the face; ``extra["retreats"]`` (n, 2, 3) the two ways in
+    (unit directions from the contact to the pre-contact: along the face normal, along -z), NaN where that
+    way is blocked. ``stats`` (a dict) receives counts of the
+    candidates dropped at each check.
+    """
+    from ._score import CLEARANCE_LEVELS, WEIGHTS
+
+    P, N = geo.points, geo.normals
+    B = geo.T_b1_box
+    up = B[:3, 2]
+    ext = geo.extent
+    w = gripper.min_width  # fingers closed: one pad
+    cone_cos = float(np.cos(np.arctan(params.friction)))
+    fingers = [s for s in gripper.shapes if s.role == "finger"]
+    # fingertip corners in g (the 4 corners of each finger box nearest the tip), at the push opening
+    tips = []
+    for s in fingers:
+        c = s.corners_g(w)
+        tips.append(c[np.argsort(-c[:, 2])[:4]])
+    all_corners = np.concatenate([s.corners_g(w) for s in gripper.shapes])
+    st = stats if stats is not None else {}
+    for k in ("faces_seen", "candidates", "off_face", "unseen", "outside_cone", "near_table", "hits_object", "hits_scene", "kept"):
+        st[k] = 0
+    rows = []  # (T, face axis, face sign, height fraction, tilt, pad alignment, contact width, n, seen, contact)
+    for axis in (0, 1):
+        for sign in (1.0, -1.0):
+            n = sign * B[:3, axis]  # outward face normal
+            t = np.cross(up, n)
+            half = 0.5 * ext[axis]
+            rel = P - geo.centre
+            along, lat, hgt = rel @ n, rel @ t, rel @ up
+            near_face = (along > half - 0.02) & (np.abs(lat) < 0.5 * ext[1 - axis])
+            if near_face.sum() < 2 * params.min_pad_points:
+                continue  # a face the cameras did not see: no blind pushes
+            st["faces_seen"] += 1
+            # the face's depth from its own points (normals along n), not from the sides' edge points near it
+            own_face = near_face & (N @ n > 0.7)
+            face_off = float(np.median(along[own_face])) if own_face.sum() >= params.min_pad_points \
+                else float(np.percentile(along[near_face], 90))
+            on_face = np.abs(along - face_off) < params.pad_depth
+            obs = geo.observed
+            # the face as a whole: planar (a plane fits its points within face_rms) and inside the friction
+            # cone; then a fingertip on a part of it no camera saw still lands on it (the box model)
+            planar, face_align, rect = False, 0.0, None
+            if on_face.sum() >= 10:
+                Qf = P[on_face] - P[on_face].mean(axis=0)
+                _, sv, Vt = np.linalg.svd(Qf, full_matrices=False)
+                planar = float(sv[-1] / np.sqrt(len(Qf))) < params.face_rms
+                face_align = abs(float(Vt[-1] @ n))
+                rect = (np.percentile(lat[on_face], [2, 98]), np.percentile(hgt[on_face], [2, 98]))
+            for hf in params.heights:
+                c = geo.centre + face_off * n + hf * 0.5 * ext[2] * up
+                for tilt in params.tilts:
+                    z = -np.cos(tilt) * n - np.sin(tilt) * up
+                    # the fingers are closed into one pad (2 x 2 cm for the Piper), so the press is symmetric
+                    # about the gripper whatever its roll about z; the rolls only help the arm reach it
+                    zt = np.cross(z, t)
+                    for roll in params.rolls:
+                        y = np.cos(roll) * t + np.sin(roll) * zt
+                        y = y / np.linalg.norm(y)
+                        R = np.stack([np.cross(y, z), y, z], axis=1)
+                        # fingertips on the face: shift along the normal so the deepest tip corner touches it
+                        depth_c = [(tc @ R.T) @ -n for tc in tips]
+                        pen = max(float(dc.max()) for dc in depth_c)
+                        o = c + n * pen
+                        touch = np.concatenate([tc[dc >= dc.max() - 1e-6] for tc, dc in zip(tips, depth_c)])
+                        contact = touch.mean(axis=0) @ R.T + o  # where the fingertips meet the face (b1)
+                        T = np.eye(4)
+                        T[:3, :3], T[:3, 3] = R, o
+                        # the pads on the face: inside the box's face, and at least one of them on seen face
+                        # points whose normals are inside the friction cone (a face is often seen only in part:
+                        # the other pad then rests on the box model of the face, which the score marks down)
+                        landed, seen, align, inside = 0, 0, 1.0, True
+                        for tc in tips:
+                            tw = tc @ R.T + o - geo.centre
+                            lo_l, hi_l = (tw @ t).min() - 0.002, (tw @ t).max() + 0.002
+                            lo_h, hi_h = (tw @ up).min() - 0.002, (tw @ up).max() + 0.002
+                            inside &= (max(abs(lo_l), abs(hi_l)) <= 0.5 * ext[1 - axis] - params.edge_margin
+                                       and lo_h >= -0.5 * ext[2] + params.edge_margin and hi_h <= 0.5 * ext[2] - params.edge_margin)
+                            # the face around the fingertip (within fit_radius of it): points there, and a
+                            # plane fitted to them (per-point normals of a face seen at a grazing angle are
+                            # too noisy; a sparse face still has a well-defined plane)
+                            mid_l, mid_h = 0.5 * (lo_l + hi_l), 0.5 * (lo_h + hi_h)
+                            around = on_face & (np.hypot(lat - mid_l, hgt - mid_h) < params.fit_radius)
+                            if around.sum() >= params.min_pad_points:
+                                landed += 1
+                                seen += (around & obs).sum() >= params.min_pad_points
+                                Q = P[around] - P[around].mean(axis=0)
+                                normal = np.linalg.svd(Q, full_matrices=False)[2][-1]
+                                align = min(align, abs(float(normal @ n)))
+                            elif planar and rect[0][0] <= mid_l <= rect[0][1] and rect[1][0] <= mid_h <= rect[1][1]:
+                                landed += 1  # on the face's plane, between points seen around it
+                                align = min(align, face_align)
+                        st["candidates"] += 1
+                        if not inside or landed < len(tips) or align < cone_cos:
+                            st["off_face" if not inside else "unseen" if landed < len(tips) else "outside_cone"] += 1
+                            continue
+                        # the whole gripper above the table by the margin
+                        if support.elevation(all_corners @ R.T + o).min() < params.scene_margin + 0.002:
+                            st["near_table"] += 1
+                            continue
+                        rows.append((T, axis, sign, hf, tilt, align, ext[axis], n, seen / len(tips), contact))
+    if not rows:
+        return GraspSet.empty(geo.id, kind="push")
+    T = np.stack([r[0] for r in rows])
+    nrm = np.stack([r[7] for r in rows])
+    T_off = T.copy()
+    T_off[:, :3, 3] += params.standoff * nrm  # held off the face for the approach check
+    wv = np.full(len(T), w)
+    own = SceneOctree(P, 0.002)
+    # the way in, from the pre-contact: back along the face normal, or back along the approach axis (from
+    # above, for a tilted gripper); each is checked at the contact (held off) and at points back to the
+    # pre-contact, and kept when free: the arm's reach filter may use either
+    retreats = np.stack([nrm, -T[:, :3, 2]], axis=1)  # (n, 2, 3)
+    path_ok = np.zeros((len(T), 2), dtype=bool)
+    hit_obj = np.zeros(len(T), dtype=bool)
+    for r in range(2):
+        free = np.ones(len(T), dtype=bool)
+        for dist in np.linspace(0.0, params.approach, 4):
+            Tk = T_off.copy()
+            Tk[:, :3, 3] += dist * retreats[:, r]
+            free[free] = ~collider.collides(own, Tk[free], wv[free], swept=False)
+            if r == 0 and dist == 0.0:
+                hit_obj = ~free.copy()
+            free[free] = ~collider.collides(others, Tk[free], wv[free], swept=False, margin=params.scene_margin)
+        path_ok[:, r] = free
+    free = path_ok.any(axis=1)
+    st["hits_object"] = int(hit_obj.sum())
+    st["hits_scene"] = int((~free & ~hit_obj).sum())
+    st["kept"] = int(free.sum())
+    keep = np.nonzero(free)[0]
+    if len(keep) == 0:
+        return GraspSet.empty(geo.id, kind="push")
+    rows = [rows[i] for i in keep]
+    T, T_off, nrm, wv = T[keep], T_off[keep], nrm[keep], wv[keep]
+    retreats = np.where(path_ok[keep][:, :, None], retreats[keep], np.nan)
+    clear = collider.clearance(others, T_off, wv, CLEARANCE_LEVELS) / CLEARANCE_LEVELS[-1]
+    tilt = np.array([r[4] for r in rows])
+    hf = np.array([r[3] for r in rows])
+    max_tilt = max(max(params.tilts), 1e-9)
+    terms = {
+        "antipodal": np.clip((np.array([r[5] for r in rows]) - cone_cos) / (1 - cone_cos), 0, 1)
+                     * (0.5 + 0.5 * np.array([r[8] for r in rows])),
+        "centring": 1.0 - np.clip(np.abs(hf - 0.3) / 0.7, 0, 1),
+        "clearance": clear,
+        "approach": 1.0 - 0.5 * np.abs(tilt) / max_tilt,
+        "contact": np.ones(len(rows)),
+    }
+    score = sum(WEIGHTS[k] * v for k, v in terms.items())
+    gs = GraspSet(geo.id, T, wv, np.array([r[6] for r in rows]), np.full(len(rows), -params.press), score, terms,
+                  kind="push", extra={"face": np.array([(r[1], r[2]) for r in rows]), "squeeze": -nrm,
+                                      "contact": np.array([r[9] for r in rows]), "retreats": retreats})
+    return gs.take(np.argsort(-score))

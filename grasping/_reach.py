@@ -1,0 +1,269 @@
+"""Reachability of grasps by one arm: a pluggable filter.
+
+A *reach filter* is any callable ``f(T_b_g, width, retreat=None) -> ReachResult`` taking grasps
+``T_b_g`` (N, 4, 4) in that arm's own base frame, openings ``width`` (N,) and optionally the directions
+to their pre-grasps ``retreat`` (N, 3) (default: back along each approach axis), and returning which of
+them the arm reaches, with the joint solutions. The grasp planner only calls it; tests and benchmarks may pass their own. A filter
+may also have ``for_scene(points_b1) -> filter``: the planner then binds it to the scene map once.
+
+:class:`ArmReach` is the real one, on the project's kinematics and collision world: a grasp is reachable
+when
+
+- the IK (``bimanual_app.kinematics.IKSolver``, damped least squares within the joint limits) reaches it
+  (up to ``n_solutions`` branches are tried for what follows),
+  trying the grasp and the same grasp turned 180 degrees about the approach axis (a parallel gripper is
+  symmetric; the wrist's joint limits often allow only one of them) -- ``ReachResult.flipped`` says which;
+- the pre-grasp, ``pregrasp`` metres back along the approach (or ``retreat``), and two points between,
+  are reached by IK
+  seeded from the grasp's solution, each step moving no joint more than ``max_step`` radians (a straight
+  approach the arm can follow, not a jump to another IK branch);
+- the grasp, the pre-grasp and the points between are free of collisions with the scene map (object
+  included) and of self collisions (``bimanual_app.collision.CollisionWorld``); the gripper's own shapes
+  (flange, palm, fingers) against the map are left to the grasp sampler's exact checks (swept, against
+  the object's own points and the rest of the scene), which the world's coarser voxels and margin would
+  otherwise overrule for every grasp, whose fingers are by design close to the object and the table.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Protocol
+
+import numpy as np
+
+from bimanual_app.transforms import inv_T
+
+from ._antipodal import rotate_about_approach
+
+__all__ = ["ReachResult", "ReachFilter", "ArmReach", "pregrasp_pose"]
+
+
+@dataclass
+class ReachResult:
+    """Outcome of a reach filter on N grasps.
+
+    ok: (N,) bool. q: (N, J) joint solution at the grasp (NaN where not ok). q_pre: (N, J) at the pre-grasp.
+    flipped: (N,) bool, the arm reaches the grasp turned 180 degrees about its approach axis (use
+    ``rotate_about_approach``). reason: (N,) why not ('' where ok).
+    """
+
+    ok: np.ndarray
+    q: np.ndarray
+    q_pre: np.ndarray
+    flipped: np.ndarray
+    reason: list = field(default_factory=list)
+
+
+class ReachFilter(Protocol):
+    def __call__(self, T_b_g: np.ndarray, width: np.ndarray | None = None,
+                 retreat: np.ndarray | None = None) -> ReachResult: ...
+
+
+def pregrasp_pose(T_b_g: np.ndarray, distance: float, retreat: np.ndarray | None = None) -> np.ndarray:
+    """Poses (..., 4, 4) ``distance`` metres back along each grasp's approach axis (its -z), or along the
+    unit directions ``retreat`` (..., 3) when given (push contacts come in along the face normal)."""
+    T = np.array(T_b_g, dtype=np.float64, copy=True)
+    d = -T[..., :3, 2] if retreat is None else np.asarray(retreat, dtype=np.float64)
+    T[..., :3, 3] += distance * d
+    return T
+
+
+class ArmReach:
+    """Reachability of grasps by one arm (see the module docstring).
+
+    Args:
+        robot: ``RobotModel`` of the arm (its ``tcp_link`` is the gripper frame g).
+        gripper: the ``GripperModel`` (to turn widths into finger joint openings).
+        T_b1_b: (4, 4) the arm's base in b1 (identity for the primary, ``T_b1_b2`` for the secondary).
+        scene_points_b1: (N, 3) scene map points in b1 for the collision check, or None (no scene).
+        pregrasp: pre-grasp distance (m), 0.08-0.10 by the grasp contract.
+        margin: clearance the arm's links keep from the scene map (m).
+        max_seeds: IK seeds per attempt (fewer: faster rejection of unreachable grasps).
+        max_step: largest joint change (rad) between successive approach points.
+        n_solutions: IK branches tried for the approach (distinct solutions of the grasp pose).
+        q_current: (J,) configuration the closest IK solution is sought to (default: the rest pose).
+        resolution: voxel size of the collision scene map (m).
+    """
+
+    def __init__(self, robot, gripper, T_b1_b: np.ndarray | None = None, scene_points_b1: np.ndarray | None = None,
+                 pregrasp: float = 0.09, margin: float = 0.004, max_seeds: int = 6, max_step: float = 0.6,
+                 q_current: np.ndarray | None = None, resolution: float = 0.01, name: str = "primary",
+                 n_solutions: int = 3, _solver=None):
+        from bimanual_app.kinematics import IKSolver
+
+        self.robot = robot
+        self.gripper = gripper
+        self.name = name
+        self.T_b1_b = np.eye(4) if T_b1_b is None else np.asarray(T_b1_b, dtype=np.float64)
+        self.pregrasp = float(pregrasp)
+        self.margin = float(margin)
+        self.max_seeds = int(max_seeds)
+        self.max_step = float(max_step)
+        self.resolution = float(resolution)
+        self.n_solutions = int(n_solutions)
+        self.q_current = robot.neutral() if q_current is None else np.asarray(q_current, dtype=np.float64)
+        self.solver = _solver or IKSolver(robot, link=robot.tcp_link)
+        self.world = None
+        if scene_points_b1 is not None:
+            self.world = self._world(scene_points_b1)
+
+    def _world(self, points_b1: np.ndarray):
+        from bimanual_app.collision import CollisionWorld, SceneMap
+
+        P = np.asarray(points_b1, dtype=np.float64).reshape(-1, 3)
+        P_b = P @ inv_T(self.T_b1_b)[:3, :3].T + inv_T(self.T_b1_b)[:3, 3]
+        # only what the arm can touch: within its reach (plus its thickness) of the base, not below it
+        P_b = P_b[(np.linalg.norm(P_b, axis=1) < self.solver.reach + 0.25) & (P_b[:, 2] > -0.05)]
+        if len(P_b) == 0:
+            return None
+        # the world is built in the arm's own base frame (its primary slot has an identity base)
+        scene = SceneMap(P_b, self.resolution, pad=0.2, source="scene map")
+        return CollisionWorld(self.robot, None, scene, margin=self.margin)
+
+    @property
+    def _pose_map(self):
+        """KD-tree over gripper poses of random configurations (position, weighted rotation): a capability map."""
+        if getattr(self.solver, "_grasp_pose_map", None) is None:
+            from scipy.spatial import cKDTree
+
+            q = self.robot.random_q(40000, rng=7)
+            T = self.robot.fk_link(q, self.robot.tcp_link)
+            feats = np.concatenate([T[:, :3, 3], self._ROT_W * T[:, :3, :3].reshape(-1, 9)], axis=1)
+            self.solver._grasp_pose_map = cKDTree(feats)  # cached with the (shared) solver
+            self.solver._grasp_pos_map = (cKDTree(T[:, :3, 3]), T[:, :3, 2].copy())
+        return self.solver._grasp_pose_map
+
+    def approach_hints(self, p_b1: np.ndarray, radius: float = 0.05, max_hints: int = 200) -> np.ndarray:
+        """(K, 3) approach directions (z of g, in b1) with which the arm was seen to reach within ``radius``
+        of the point ``p_b1`` (3,): where to aim the grasp sampler's approach directions near an object."""
+        _ = self._pose_map
+        tree, Z = self.solver._grasp_pos_map
+        p_b = inv_T(self.T_b1_b) @ np.append(np.asarray(p_b1, dtype=np.float64), 1.0)
+        idx = tree.query_ball_point(p_b[:3], radius)
+        if not idx:
+            return np.zeros((0, 3))
+        idx = np.asarray(idx)[:max_hints]
+        return Z[idx] @ self.T_b1_b[:3, :3].T
+
+    _ROT_W = 0.1  # metres per unit of rotation-matrix difference
+
+    def prior(self, T_b_g: np.ndarray) -> np.ndarray:
+        """(N,) distance from each grasp (or its turned twin) to the nearest pose the arm was seen to reach.
+
+        A cheap predictor used to order the exact checks (small first); it decides nothing on its own.
+        """
+        T = np.asarray(T_b_g, dtype=np.float64).reshape(-1, 4, 4)
+        d = []
+        for Tk in (T, rotate_about_approach(T)):
+            f = np.concatenate([Tk[:, :3, 3], self._ROT_W * Tk[:, :3, :3].reshape(-1, 9)], axis=1)
+            d.append(self._pose_map.query(f, k=1)[0])
+        return np.minimum(*d)
+
+    def for_scene(self, points_b1: np.ndarray) -> "ArmReach":
+        """The same filter with another scene map (points (N, 3) in b1); shares the IK solver."""
+        return ArmReach(self.robot, self.gripper, self.T_b1_b, points_b1, self.pregrasp, self.margin,
+                        self.max_seeds, self.max_step, self.q_current, self.resolution, self.name, self.n_solutions,
+                        _solver=self.solver)
+
+    def _approach(self, T: np.ndarray, q: np.ndarray, retreat: np.ndarray | None = None
+                  ) -> tuple[np.ndarray | None, list[np.ndarray], str]:
+        """IK along the straight approach from the grasp back to the pre-grasp, seeded step by step."""
+        qs = []
+        prev = q
+        for s in (1 / 3, 2 / 3, 1.0):
+            res = self.solver.solve(pregrasp_pose(T, s * self.pregrasp, retreat), q_current=prev, max_seeds=4)
+            if not res.success:
+                return None, qs, f"pre-grasp {s * self.pregrasp * 100:.0f} cm back: {res.message}"
+            if np.max(np.abs(res.q - prev)) > self.max_step:
+                return None, qs, "the straight approach needs a jump between IK branches"
+            qs.append(res.q)
+            prev = res.q
+        return prev, qs, ""
+
+    def _collisions(self, Q: np.ndarray) -> str:
+        """'' when configurations Q (K, J) are collision free, else what collides.
+
+        The gripper's own shapes against the scene map are left out: the grasp planner has checked them
+        already, exactly (swept, against the octree and the object's own points), while the world's coarser
+        map (``resolution`` voxels plus ``margin``) would reject fingertips that pass just above the table.
+        """
+        valid = self.world.valid_batch(Q)
+        for k in np.nonzero(~valid)[0]:
+            real = [e for e in self.world.explain(Q[k]) if not self._gripper_vs_scene(e)]
+            if real:
+                return f"{'grasp' if k == 0 else 'approach'} in collision: {real[0]}"
+        return ""
+
+    def _gripper_vs_scene(self, text: str) -> bool:
+        # CollisionWorld.explain: "<arm> <shape> touches the scene map"; shape = link name (+ "#k")
+        parts = text.split()
+        return (text.endswith("touches the scene map") and len(parts) >= 2
+                and parts[1].split("#")[0] in self.gripper.links)
+
+    def __call__(self, T_b_g: np.ndarray, width: np.ndarray | None = None,
+                 retreat: np.ndarray | None = None) -> ReachResult:
+        """Reachability of grasps ``T_b_g`` (N, 4, 4) in this arm's base frame at openings ``width`` (N,);
+        ``retreat`` (N, 3): unit directions (base frame) to the pre-grasp, default each grasp's -z."""
+        T_b_g = np.asarray(T_b_g, dtype=np.float64).reshape(-1, 4, 4)
+        rt = None if retreat is None else np.asarray(retreat, dtype=np.float64).reshape(-1, 3)
+        n = len(T_b_g)
+        J = self.robot.nq_arm
+        w = np.full(n, self.gripper.min_width) if width is None else np.broadcast_to(np.asarray(width, float), (n,))
+        out = ReachResult(np.zeros(n, bool), np.full((n, J), np.nan), np.full((n, J), np.nan), np.zeros(n, bool), [""] * n)
+        for i in range(n):
+            why = []
+            for flip in (False, True):
+                T = rotate_about_approach(T_b_g[i]) if flip else T_b_g[i]
+                res = self.solver.solve(T, q_current=self.q_current, max_seeds=self.max_seeds)
+                if not res.success:
+                    why.append(res.message)
+                    continue
+                branches = [res.q]
+                if self.n_solutions > 1:  # more IK branches, only asked for when the first one's approach fails
+                    def more(T=T, q0=res.q):
+                        r = self.solver.solve(T, q_current=self.q_current, max_seeds=self.max_seeds,
+                                              n_solutions=self.n_solutions)
+                        return [q for q in r.solutions if np.abs(q - q0).max() > 1e-3]
+                    branches = _Lazy(branches, more)
+                for q in branches:  # closest to the current configuration first
+                    q_pre, q_path, msg = self._approach(T, q, None if rt is None else rt[i])
+                    if q_pre is None:
+                        why.append(msg)
+                        continue
+                    if self.world is not None:
+                        self.world.set_opening(0, self.gripper.robot_opening(float(w[i])))
+                        bad = self._collisions(np.stack([q] + q_path))
+                        if bad:
+                            why.append(bad)
+                            continue
+                    out.ok[i], out.q[i], out.q_pre[i], out.flipped[i] = True, q, q_pre, flip
+                    break
+                if out.ok[i]:
+                    break
+            if not out.ok[i]:
+                out.reason[i] = why[-1] if why else "unreachable"
+        return out
+
+
+class _Lazy:
+    """Iterate ``first``, then (only if the loop gets that far) what ``more()`` returns."""
+
+    def __init__(self, first: list, more):
+        self.first, self.more = first, more
+
+    def __iter__(self):
+        yield from self.first
+        yield from self.more()
+
+
+def callable_filter(fn: Callable[[np.ndarray], np.ndarray], J: int = 6) -> ReachFilter:
+    """A reach filter from a plain predicate on poses (N, 4, 4) -> (N,) bool (no joint solutions)."""
+
+    def f(T_b_g: np.ndarray, width: np.ndarray | None = None, retreat: np.ndarray | None = None) -> ReachResult:
+        T_b_g = np.asarray(T_b_g, dtype=np.float64).reshape(-1, 4, 4)
+        ok = np.asarray(fn(T_b_g), dtype=bool)
+        n = len(T_b_g)
+        return ReachResult(ok, np.full((n, J), np.nan), np.full((n, J), np.nan), np.zeros(n, bool),
+                           ["" if o else "rejected by the reach predicate" for o in ok])
+
+    return f

@@ -1,0 +1,182 @@
+"""Region clean-up after contraction: attach parts that cannot stand on their own, drop noise.
+
+Convexity alone cuts objects that have concave junctions of their own: a mug's handle, its inside, a
+duck's head, a bunny's ears. Such parts share a physical trait that separate objects lack: they do not
+stand on the table (nor on top of another object), and/or they lie inside another region's footprint.
+A region S adjacent to a bigger region N is attached to N when
+
+    S's bottom is below N's top (S is not stacked on N), and
+    S does not reach the table, or at least 90% of S lies inside N's footprint (convex hull in x-y).
+
+A touching neighbour that stands on the table beside N is left alone; a box stacked on N is left alone.
+Tiny regions (fewer than ``min_object_voxels``) join the neighbour with the best affinity when they rise
+above the table band, and are dropped otherwise.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._graph import RegionGraph
+from ._params import SegmentParams
+
+STACK_TOL = 0.01  # S may stand on N when its bottom is within 1 cm of N's top, or above it
+THIN = 0.03  # a part hanging off N outside its footprint must be narrower than this (a handle)
+TIGHT_MARGIN = 0.005
+HULL_MARGIN = 0.01  # "inside N's footprint": within N's x-y convex hull grown by 1 cm (N's walls, noise)
+
+
+def _inside_hull(hull_xy: np.ndarray, xy: np.ndarray, margin: float, cell: float = 0.002) -> np.ndarray:
+    """(M,) bool: points ``xy`` (M, 2) inside the convex polygon ``hull_xy`` (K, 2) grown by ``margin``.
+
+    Rasterised (OpenCV ``fillConvexPoly`` + ``dilate``) at ``cell``: one grid look-up per point.
+    """
+    import cv2
+
+    if len(hull_xy) < 3:
+        return np.zeros(len(xy), bool)
+    lo = hull_xy.min(0) - margin - 2 * cell
+    shape = np.ceil((hull_xy.max(0) + margin + 2 * cell - lo) / cell).astype(int) + 1
+    grid = np.zeros((shape[1], shape[0]), np.uint8)
+    cv2.fillConvexPoly(grid, np.round((hull_xy - lo) / cell).astype(np.int32), 1)
+    r = int(np.ceil(margin / cell))
+    if r > 0:
+        grid = cv2.dilate(grid, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    ij = np.floor((xy - lo) / cell).astype(np.int64)
+    ok = (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < shape[0]) & (ij[:, 1] < shape[1])
+    out = np.zeros(len(xy), bool)
+    out[ok] = grid[ij[ok, 1], ij[ok, 0]] > 0
+    return out
+
+
+class _Stats:
+    def __init__(self, xyz: np.ndarray, voxels_of: dict[int, np.ndarray]):
+        import cv2
+
+        self.bottom, self.top, self.hull, self.xy, self.width = {}, {}, {}, {}, {}
+        for r, idx in voxels_of.items():
+            z = xyz[idx, 2]
+            self.bottom[r] = float(np.percentile(z, 1))
+            self.top[r] = float(np.percentile(z, 98))
+            xy = xyz[idx, :2]
+            self.xy[r] = xy
+            self.hull[r] = (cv2.convexHull(xy.astype(np.float32)).reshape(-1, 2).astype(np.float64)
+                            if len(xy) >= 3 else xy)
+            self.width[r] = float(min(cv2.minAreaRect(xy.astype(np.float32))[1])) if len(xy) >= 3 else 0.0
+
+
+def reaches_table(bottom: float, top: float) -> bool:
+    """True when a region's lowest visible voxels are near the table (its base is seen or implied)."""
+    return bottom <= max(0.015, 0.3 * top)
+
+
+def looks_different(G: RegionGraph, S: int, N: int) -> bool:
+    """The masks say S and N are different instances, or their colours differ across a flat junction."""
+    if G.masks is not None and G.mask_agreement(S, N) < -0.5:
+        return True
+    w, _, wf = G.adj[S][N]
+    return G.hist is not None and wf / max(w, 1e-9) * G.colour_penalty(S, N) >= 0.5
+
+
+def is_object_on(G: RegionGraph, S: int, N: int, st: _Stats, params: SegmentParams) -> bool:
+    """S (whose bottom is at N's top) is an object standing on N, not a part of N's top.
+
+    It must rise above N by at least ``min_object_height`` (a flat piece of N's top face is N's print),
+    and, when colours are known, its colours must differ from N's (a duck's head sits on its body).
+    """
+    if st.top[S] - st.bottom[S] < params.min_object_height:
+        return False
+    return G.hist is None or G.colour_penalty(S, N) >= 0.5
+
+
+def _groups(G: RegionGraph, patch_of_voxel: np.ndarray) -> dict[int, np.ndarray]:
+    lab = np.array([G.find(i) for i in range(len(G.parent))])[patch_of_voxel]
+    order = np.argsort(lab, kind="stable")
+    bounds = np.flatnonzero(np.diff(lab[order])) + 1
+    return {int(lab[g[0]]): g for g in np.split(order, bounds)}
+
+
+def attach_parts(G: RegionGraph, patch_of_voxel: np.ndarray, xyz: np.ndarray, params: SegmentParams,
+                 max_rounds: int = 200) -> int:
+    """Merge tiny regions and dependent parts of ``G`` in place; returns the number of merges.
+
+    ``patch_of_voxel`` (V,) maps voxels to patches (the graph's initial nodes); ``xyz`` (V, 3) are the
+    voxels in the table frame (z = height).
+    """
+    merges = 0
+    # 1. tiny regions, smallest first, into their best neighbour (one pass; sizes are kept by G)
+    groups = _groups(G, patch_of_voxel)
+    top = {r: float(xyz[idx, 2].max()) for r, idx in groups.items()}
+    for S in sorted(groups, key=lambda r: len(groups[r])):
+        r = G.find(S)
+        if r != S or G.nvox[S] >= params.min_object_voxels or top[S] < params.min_object_height:
+            continue
+        nbrs = [n for n in G.adj[S] if G.alive[n]]
+        if nbrs:
+            G.merge(S, max(nbrs, key=lambda n: G.affinity(S, n)))
+            merges += 1
+    # 2. parts that cannot stand alone, one merge per round (stats change with each merge)
+    for _ in range(max_rounds):
+        groups = _groups(G, patch_of_voxel)
+        big = {r: g for r, g in groups.items() if len(g) >= params.min_object_voxels}
+        st = _Stats(xyz, big)
+        did = False
+        for S in sorted(big, key=lambda r: len(big[r])):
+            nS = len(big[S])
+            cands = []
+            for N in G.adj[S]:
+                if N not in big or len(big[N]) <= nS or looks_different(G, S, N):
+                    continue
+                if st.bottom[S] >= st.top[N] - STACK_TOL and is_object_on(G, S, N, st, params):
+                    continue
+                overlap = float(np.mean(_inside_hull(st.hull[N], st.xy[S], HULL_MARGIN)))
+                if overlap >= 0.9:
+                    cands.append(N)  # within N's footprint: N's inside, N's print, a part on top
+                elif overlap >= 0.5 and np.mean(_inside_hull(st.hull[N], st.xy[S], TIGHT_MARGIN)) >= 0.5:
+                    cands.append(N)  # half inside N's footprint: two convex objects cannot interpenetrate
+                elif (not reaches_table(st.bottom[S], st.top[S]) and st.width[S] < THIN
+                      and st.top[S] <= st.top[N] + STACK_TOL / 2):
+                    cands.append(N)  # hangs off N's side, thin, not above it (a handle)
+            if cands:
+                G.merge(S, max(cands, key=lambda n: G.affinity(S, n)))
+                merges += 1
+                did = True
+                break
+        if not did:
+            break
+    return merges
+
+
+def dissolve_slivers(region: np.ndarray, xyz: np.ndarray, width: float, min_voxels: int) -> np.ndarray:
+    """Hand the voxels of sliver regions to the nearest voxel of another region.
+
+    Where two objects meet in a concave valley, the voxels along the valley are concave to both sides
+    and can end up as a region of their own: tall or long, but only about a centimetre wide in x-y.
+    Regions whose footprint (OpenCV minimum-area rectangle of the x-y) is narrower than ``width`` are
+    split voxel by voxel between their neighbours (nearest kept voxel, KD-tree). ``region`` (V,) region
+    ids, ``xyz`` (V, 3) table frame; returns the new (V,) ids.
+    """
+    import cv2
+    from scipy.spatial import cKDTree
+
+    R = int(region.max()) + 1
+    order = np.argsort(region, kind="stable")
+    bounds = np.flatnonzero(np.diff(region[order])) + 1
+    sliver = np.zeros(R, bool)
+    for g in np.split(order, bounds):
+        if len(g) < 3:
+            continue
+        (_, _), (w, h), _ = cv2.minAreaRect(xyz[g, :2].astype(np.float32))
+        sliver[region[g[0]]] = min(w, h) < width
+    counts = np.bincount(region, minlength=R)
+    donors = ~sliver[region] & (counts[region] >= min_voxels)
+    move = sliver[region]
+    if not move.any() or not donors.any():
+        return region
+    tree = cKDTree(xyz[donors])
+    d, j = tree.query(xyz[move], k=1, distance_upper_bound=4 * width, workers=-1)
+    out = region.copy()
+    ok = np.isfinite(d)
+    idx = np.flatnonzero(move)
+    out[idx[ok]] = region[np.flatnonzero(donors)[j[ok]]]
+    return out

@@ -1,0 +1,168 @@
+"""Collision world: broad phase bounds, agreement with coal, arms vs arms / self / scene, cut and attach."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+from _motion_fixtures import BOX_CENTER, BOX_HALF, T_B1_B2, down_pose, table_cloud
+from bimanual_app.collision import CollisionWorld, SceneMap
+from bimanual_app.collision._capsules import segment_distance
+from bimanual_app.io_utils import InputError
+from bimanual_app.robots import load_robot
+from bimanual_app.transforms import make_T
+
+
+@pytest.fixture(scope="module")
+def piper():
+    return load_robot("piper")
+
+
+@pytest.fixture(scope="module")
+def cloud():
+    return table_cloud()
+
+
+@pytest.fixture(scope="module")
+def world(piper, cloud):
+    return CollisionWorld(piper, T_B1_B2, cloud[0])
+
+
+def test_segment_distance_matches_dense_sampling():
+    rng = np.random.default_rng(0)
+    P = rng.normal(size=(150, 4, 3))
+    P[:20, 1] = P[:20, 0]  # degenerate: a point
+    P[20:40, 3] = P[20:40, 2] + 0.5 * (P[20:40, 1] - P[20:40, 0])  # parallel segments
+    d = segment_distance(P[:, 0], P[:, 1], P[:, 2], P[:, 3])
+    s = np.linspace(0, 1, 201)
+    A = P[:, None, 0] + s[None, :, None] * (P[:, None, 1] - P[:, None, 0])
+    B = P[:, None, 2] + s[None, :, None] * (P[:, None, 3] - P[:, None, 2])
+    brute = np.linalg.norm(A[:, :, None] - B[:, None, :], axis=-1).min(axis=(1, 2))
+    assert np.all(d <= brute + 1e-12)
+    assert np.all(brute - d < 0.04)
+
+
+def test_piper_shapes_are_capsules_except_the_gripper(world):
+    arm = world.arms[0]
+    names = arm.shapes.names
+    exact = dict(zip(names, arm.shapes.exact))
+    assert all(exact[n] for n in ("base_link", "link1", "link2", "link3", "link4", "link5", "link6"))
+    assert not any(exact[n] for n in ("gripper_base", "link7", "link8"))
+    pairs = {(names[i], names[j]) for i, j in arm.shapes.self_pairs}
+    assert ("link2", "link3") not in pairs and ("link3", "link2") not in pairs  # adjacent
+    assert ("base_link", "link2") in pairs or ("link2", "base_link") in pairs
+    assert not any("link7" in p and "link8" in p for p in pairs)  # same arm joint group (fingers)
+
+
+def test_scene_map_bounds_are_conservative(cloud):
+    import coal
+
+    sm = SceneMap(cloud[0], resolution=0.01, pad=0.1)
+    rng = np.random.default_rng(1)
+    P = np.c_[rng.uniform(0.1, 0.5, 300), rng.uniform(-0.2, 0.2, 300), rng.uniform(0.0, 0.3, 300)]
+    lookup = sm.lookup(P)
+    sphere = coal.Sphere(1e-6)
+    req, res = coal.DistanceRequest(), coal.DistanceResult()
+    for p, e in zip(P, lookup):
+        res.clear()
+        true = coal.distance(sphere, coal.Transform3s(np.eye(3), p), sm.octree, coal.Transform3s(), req, res)
+        assert e - sm.slack_lower <= true + 1e-6
+        if e < sm.pad:  # inside the distance field: an upper bound too (outside it only a lower bound)
+            assert true <= e + sm.slack_upper + 1e-6
+    with pytest.raises(InputError, match="no points"):
+        SceneMap(np.zeros((0, 3)))
+    with pytest.raises(InputError, match="no points"):
+        SceneMap(np.full((5, 3), np.nan))
+
+
+def test_batch_check_agrees_with_coal_distances(piper, world):
+    rng = np.random.default_rng(2)
+    Q1, Q2 = piper.random_q(150, rng), piper.random_q(150, rng)
+    fast = world.valid_batch(Q1, Q2)
+    exact = np.array([world.distance(a, b).valid for a, b in zip(Q1, Q2)])
+    np.testing.assert_array_equal(fast, exact)
+    assert 0.2 < fast.mean() < 0.9  # both outcomes are exercised
+    # single-configuration path and held-arm broadcasting agree with the batch
+    assert all(world.valid(Q1[i], Q2[i]) == fast[i] for i in range(10))
+    held = world.valid_batch(Q1[:20], Q2[0])
+    np.testing.assert_array_equal(held, world.valid_batch(Q1[:20], np.repeat(Q2[:1], 20, axis=0)))
+
+
+def test_rest_pose_is_free_and_known_collisions_are_found(piper, world):
+    q0 = piper.neutral()
+    assert world.valid(q0, q0)
+    rep = world.distance(q0, q0)
+    assert rep.valid and rep.min_distance > 0.005 and rep.scene["primary"][0] > 0.01
+    # the gripper pushed into the box
+    from bimanual_app.kinematics import IKSolver
+
+    res = IKSolver(piper).solve(down_pose(BOX_CENTER + np.array([0, 0, BOX_HALF[2] - 0.06])))
+    assert res.success
+    assert not world.valid(res.q, q0)
+    why = world.explain(res.q, q0)
+    assert any("scene map" in w for w in why)
+    # arm against arm: the two bases 25 cm apart, both arms stretched towards each other
+    close = CollisionWorld(piper, make_T(np.diag([-1.0, -1.0, 1.0]), [0.25, 0, 0]), None)
+    q = np.array([0.0, 1.4, -0.6, 0.0, 0.0, 0.0])
+    assert not close.valid(q, q)
+    assert any("secondary" in w for w in close.explain(q, q))
+    assert not close.distance(q, q).valid
+    # self collision: wrist folded back onto the upper arm
+    q_self = np.array([0.0, 1.0, -2.96, 0.0, 1.2, 0.0])
+    single = CollisionWorld(piper)
+    assert single.valid(q_self) == single.distance(q_self).valid
+
+
+def test_margin_changes_the_answer(piper, cloud):
+    from bimanual_app.kinematics import IKSolver
+
+    q = IKSolver(piper).solve(down_pose([0.25, -0.25, 0.03])).q
+    tight = CollisionWorld(piper, None, cloud[0], margin=0.005)
+    loose = CollisionWorld(piper, None, cloud[0], margin=0.06)
+    d = tight.distance(q).scene["primary"][0]
+    assert 0.005 < d < 0.06
+    assert tight.valid(q) and not loose.valid(q)
+
+
+def test_cut_and_attach(piper, cloud):
+    from bimanual_app.kinematics import IKSolver
+
+    pts, mask = cloud
+    w = CollisionWorld(piper, T_B1_B2, pts)
+    q0 = piper.neutral()
+    # a grasp around the box's top: the fingers are inside the box's points until the box is cut out
+    q = IKSolver(piper).solve(down_pose(BOX_CENTER + np.array([0, 0, BOX_HALF[2] - 0.06]))).q
+    w.set_opening("primary", 0.07)
+    assert not w.valid(q, q0)
+    w.cut(mask)
+    assert w.valid(q, q0)
+    # attach: the box moves with the gripper; it is checked against the scene (it stands on the table,
+    # 5 mm padding) but not against its own gripper
+    w.attach("primary", pts[mask], q)
+    assert w.arms[0].shapes.names[-1] == "object"
+    assert any("object touches the scene map" in x for x in w.explain(q, q0))
+    q_lift = q + np.array([0.0, -0.25, 0.0, 0.0, 0.0, 0.0])  # shoulder back: the box rises off the table
+    assert w.valid(q_lift, q0)
+    rep_with = w.distance(q_lift, q0)
+    w.detach("primary")
+    rep_without = w.distance(q_lift, q0)
+    assert rep_with.min_distance <= rep_without.min_distance
+    assert "object" not in w.arms[0].shapes.names
+    # the lever bound: joint 1 moves the whole arm
+    lever = w.arms[0].lever
+    assert lever[0] >= lever[-1] > 0 and 0.5 < lever[0] < 1.2
+
+
+def test_panda_world_uses_mesh_shapes(cloud):
+    import pybullet_data
+
+    panda = load_robot(os.path.join(pybullet_data.getDataPath(), "franka_panda/panda.urdf"), ee_link="panda_hand")
+    w = CollisionWorld(panda, None, cloud[0])
+    assert not w.arms[0].shapes.exact.any()
+    rng = np.random.default_rng(3)
+    Q = panda.random_q(12, rng)
+    fast = w.valid_batch(Q)
+    exact = np.array([w.distance(q).valid for q in Q])
+    np.testing.assert_array_equal(fast, exact)

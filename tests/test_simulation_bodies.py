@@ -1,0 +1,86 @@
+"""Collision bodies from points: table plane fit, convex hull extruded to the table, boxes, masses."""
+
+import numpy as np
+import pytest
+
+from bimanual_app.simulation import (box_shape, fit_table, match_truth, shape_from_points, table_from_plane,
+                                     truth_shapes)
+from bimanual_app.simulation._bodies import DEFAULT_DENSITY
+from bimanual_app.transforms import make_T, so3_exp
+from tests._task_fixtures import box_surface_points, table_points
+
+
+def test_table_fit_finds_the_horizontal_plane_not_a_wall():
+    rng = np.random.default_rng(0)
+    table = table_points(4000, z=0.02)
+    wall = np.stack([np.full(3000, 0.9), rng.uniform(-0.5, 0.5, 3000), rng.uniform(0, 0.8, 3000)], 1)
+    pts = np.vstack([table, wall])
+    plane = fit_table(pts, np.full(len(pts), -1))
+    assert plane.normal[2] > 0.999
+    assert abs(plane.height(np.array([0.3, 0.1, 0.02]))) < 0.002
+    # the rectangle covers the table points (plus margin) and sits on the plane
+    assert plane.size[0] > 1.0 and plane.size[1] > 0.9
+    assert abs(plane.T_b1_t[2, 3] - 0.02) < 0.002
+
+
+def test_table_fit_ignores_object_points_and_needs_enough_background():
+    pts = np.vstack([table_points(2000), box_surface_points([0.3, 0, 0.05], [0.2, 0.2, 0.1], 3000)])
+    labels = np.r_[np.full(2000, -1), np.zeros(3000, int)]
+    plane = fit_table(pts, labels)
+    assert abs(plane.d) < 0.002
+    with pytest.raises(ValueError, match="background"):
+        fit_table(pts[:40], np.full(40, -1))
+
+
+def test_hull_from_visible_points_reaches_the_table_and_gets_its_mass_from_volume():
+    size = np.array([0.05, 0.04, 0.10])
+    pts = box_surface_points([0.3, 0.05, 0.05], size, 2000, noise=0.0005)
+    pts = np.vstack([pts, [[0.3, 0.05, 0.4]]])  # a stray point far above: dropped as an outlier
+    table = table_from_plane([0, 0, 1], 0.0)
+    sh = shape_from_points(pts, table)
+    assert sh.kind == "hull"
+    world_v = sh.vertices @ sh.T_b1_o[:3, :3].T + sh.T_b1_o[:3, 3]
+    assert world_v[:, 2].min() < 0.002  # extruded down to the table (the bottom was never seen)
+    assert world_v[:, 2].max() < 0.105  # the stray point did not inflate it
+    assert sh.volume == pytest.approx(np.prod(size), rel=0.15)  # noise widens a hull by ~1 mm a side
+    assert sh.mass == pytest.approx(sh.volume * DEFAULT_DENSITY, rel=1e-6)
+    # centroid at the box centre; faces index the vertices and point outwards
+    assert np.allclose(sh.T_b1_o[:3, 3], [0.3, 0.05, 0.05], atol=0.004)
+    c = sh.vertices.mean(0)
+    a, b, d = (sh.vertices[sh.faces[:, i]] for i in range(3))
+    assert np.all(np.einsum("ij,ij->i", np.cross(b - a, d - a), a - c) > -1e-12)
+
+
+def test_box_shape_recovers_a_yawed_box():
+    size = np.array([0.12, 0.05, 0.06])
+    R = so3_exp(np.array([0, 0, 0.5]))
+    local = box_surface_points([0, 0, 0], size, 2000, visible_only=False)
+    pts = local @ R.T + [0.35, -0.1, 0.03]
+    sh = shape_from_points(pts, table_from_plane([0, 0, 1], 0.0), kind="box")
+    assert np.allclose(np.sort(sh.size), np.sort(size), atol=0.006)
+    long_axis = sh.T_b1_o[:3, int(np.argmax(sh.size))]
+    assert abs(abs(long_axis @ R[:, 0]) - 1) < 0.01
+
+
+def test_degenerate_or_tiny_segments_are_refused():
+    with pytest.raises(ValueError, match="at least 10"):
+        shape_from_points(np.zeros((5, 3)))
+    flat = np.c_[np.random.default_rng(0).uniform(0, 0.1, (100, 2)), np.zeros(100)]
+    with pytest.raises(ValueError, match="degenerate"):
+        shape_from_points(flat)
+    with pytest.raises(ValueError, match="unknown primitive"):
+        box_shape(np.eye(4), [0.1, 0.1, 0.1], kind="torus")
+
+
+def test_truth_shapes_and_matching_to_estimates():
+    objs = [{"id": 0, "kind": "box", "T_b1_o": make_T(np.eye(3), [0.3, 0, 0.05]).tolist(), "size": [0.05, 0.04, 0.1],
+             "mass": 0.2},
+            {"id": 1, "kind": "cylinder", "T_b1_o": make_T(np.eye(3), [0.4, 0.2, 0.04]).tolist(),
+             "size": [0.06, 0.06, 0.08], "mass": 0.1}]
+    truth = truth_shapes(objs)
+    assert truth[0].mass == 0.2 and truth[1].kind == "cylinder"
+    assert truth[1].volume == pytest.approx(np.pi * 0.03**2 * 0.08)
+    est = {5: box_shape(make_T(np.eye(3), [0.41, 0.19, 0.04]), [0.06, 0.06, 0.08]),
+           7: box_shape(make_T(np.eye(3), [0.31, 0.0, 0.05]), [0.05, 0.04, 0.1]),
+           9: box_shape(make_T(np.eye(3), [0.0, -0.4, 0.05]), [0.05, 0.04, 0.1])}  # nothing real there
+    assert match_truth(est, truth) == {5: 1, 7: 0}

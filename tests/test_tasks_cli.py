@@ -1,0 +1,140 @@
+"""`bijcr task` end to end on a small scene built in code (calibration = ground truth, cloud, segments and
+grasps.json in the stages' formats): both tasks plan, pass the physics preview and write everything;
+a calibration from another scene, an unknown object, a foreign output folder are refused; an object
+with no feasible grasp and a planner that finds no path in time give a clear failed result."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from bimanual_app.cli import main
+from bimanual_app.hardware import check_approval, load_approval, load_plan
+from bimanual_app.robots import load_robot
+from tests._task_fixtures import make_task_workdir
+
+
+@pytest.fixture(scope="module")
+def fixture_dirs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("taskfx")
+    scene, work = make_task_workdir(root, load_robot("piper"))
+    return scene, work
+
+
+def _run(args):
+    return main(["task", *map(str, args), "--frame-size", "160x120", "--quiet"])
+
+
+@pytest.mark.parametrize("task, extra", [("handover", []), ("joint-grasp", ["--truth-objects"])])
+def test_task_end_to_end(fixture_dirs, tmp_path, task, extra, monkeypatch):
+    monkeypatch.setenv("BIJCR_APPROVAL_KEY", "test-key")
+    scene, work = fixture_dirs
+    out = tmp_path / task
+    assert _run([task, scene, "--work", work, "--out", out, *extra]) == 0
+    rec = json.loads((out / "task.json").read_text())
+    assert rec["success"] is True and rec["task"] == task
+    assert rec["object"] == (0 if task == "handover" else 1) and "best-scoring" in rec["object_reason"]
+    check = rec["preview"]["checks"]["hold"]
+    assert check["ok"] and check["held_s"] >= 2.0 and check["max_rise_m"] >= 0.10
+    assert rec["preview"]["world"] == ("ground truth" if extra else "estimate")
+    assert rec["preview"]["contacts"] == []
+    names = [p["phase"] for p in rec["plans"]]
+    if task == "handover":
+        assert names[:3] == ["reach", "approach", "grasp"] and "release" in names and names[-1] == "hold"
+        assert "secondary only" in check["detail"]
+    else:
+        assert names[:4] == ["reach", "approach", "close", "lift"] and "hold" in names
+    assert all(p["duration_s"] > 0 and p["n_waypoints"] >= 2 for p in rec["plans"])
+    assert {"plan", "preview", "total"} <= set(rec["timings_s"])
+    # outputs: animation, one key frame per phase (+ start), the plan and its signed passing approval
+    assert (out / "preview.gif").stat().st_size > 1000
+    assert len(list(out.glob("*.png"))) == len(names) + 1
+    plan = load_plan(out / "plan.npz")
+    appr = check_approval(load_approval(out / "approval.json"), plan)  # raises unless valid for this plan
+    assert appr.verdict == "pass" and rec["approval"]["plan_sha256"] == appr.plan_sha256
+    # every arm trajectory is within the joint and (validated) velocity limits
+    robot = load_robot("piper")
+    for tr in plan.values():
+        assert np.all(tr.q >= robot.lower - 1e-6) and np.all(tr.q <= robot.upper + 1e-6)
+        assert np.all(np.abs(tr.velocities()) <= robot.velocity_limits + 1e-6)
+    assert not list(out.parent.glob(f".{out.name}.tmp-*"))  # staging folder gone
+
+
+def _copy_work(work, tmp_path):
+    w = tmp_path / "work"
+    shutil.copytree(work, w)
+    return w
+
+
+def test_refuses_a_calibration_of_another_scene(fixture_dirs, tmp_path, capsys):
+    scene, work = fixture_dirs
+    w = _copy_work(work, tmp_path)
+    cal_path = w / "calibration" / "calibration.json"
+    cal = json.loads(cal_path.read_text())
+    cal["scene"] = "kitchen_monday"
+    cal_path.write_text(json.dumps(cal))
+    out = tmp_path / "out"
+    assert _run(["handover", scene, "--work", w, "--out", out]) == 1
+    err = capsys.readouterr().err
+    assert "for scene 'kitchen_monday', not 'fixture'" in err and "calibration.json" in err
+    assert not out.exists()
+    # same name, but the transforms of another capture: the camera poses it implies do not fit the views
+    cal["scene"] = "fixture"
+    T = np.array(cal["T_b1_w"])
+    T[:3, 3] += [0.3, 0.0, 0.0]
+    cal["T_b1_w"] = T.tolist()
+    cal_path.write_text(json.dumps(cal))
+    assert _run(["handover", scene, "--work", w, "--out", out]) == 1
+    assert "does not fit this scene's views" in capsys.readouterr().err and not out.exists()
+    # more views used than the scene has
+    cal = json.loads((work / "calibration" / "calibration.json").read_text())
+    cal["views_used"] = {"primary": 9, "secondary": 5}
+    cal_path.write_text(json.dumps(cal))
+    assert _run(["handover", scene, "--work", w, "--out", out]) == 1
+    assert "uses 9 views but primary/ee_poses.csv has 5 rows" in capsys.readouterr().err
+
+
+def test_bad_object_and_foreign_output_folder_are_refused(fixture_dirs, tmp_path, capsys):
+    scene, work = fixture_dirs
+    assert _run(["handover", scene, "--work", work, "--out", tmp_path / "o", "--object", "7"]) == 1
+    assert "no object 7 in the segments (objects: 0, 1)" in capsys.readouterr().err
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("keep me")
+    assert _run(["handover", scene, "--work", work, "--out", foreign]) == 1
+    assert "not a task result" in capsys.readouterr().err
+    assert (foreign / "notes.txt").read_text() == "keep me" and len(list(foreign.iterdir())) == 1
+
+
+def test_unreachable_object_gives_a_clear_failed_result(fixture_dirs, tmp_path, capsys):
+    scene, work = fixture_dirs
+    out = tmp_path / "o"
+    # object 1 (the bar) has no hand-over in grasps.json: nothing reaches it for that task
+    assert _run(["handover", scene, "--work", work, "--out", out, "--object", "1"]) == 1
+    rec = json.loads((out / "task.json").read_text())
+    assert rec["success"] is False and rec["failed_stage"] == "grasp"
+    assert "object 1 has no reachable hand-over" in rec["reason"]
+    assert not (out / "preview.gif").exists() and not (out / "approval.json").exists()
+    assert "object 1 has no reachable hand-over" in capsys.readouterr().err
+
+
+def test_no_plan_in_time_fails_cleanly_and_replaces_an_old_result(fixture_dirs, tmp_path, monkeypatch):
+    from bimanual_app.planning import BimanualSetup, MotionPlan
+
+    scene, work = fixture_dirs
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "task.json").write_text("{}")  # an earlier result: replaced as a whole
+    (out / "preview.gif").write_bytes(b"old")
+
+    def no_path(self, arms, q_start, goals, q_now=None, timeout=2.0, seed=None):
+        assert timeout == 0.5
+        return MotionPlan(False, "RRTConnect found no path", reason="search")
+
+    monkeypatch.setattr(BimanualSetup, "plan_configurations", no_path)
+    assert _run(["joint-grasp", scene, "--work", work, "--out", out, "--plan-time", "0.5"]) == 1
+    rec = json.loads((out / "task.json").read_text())
+    assert rec["success"] is False and rec["failed_stage"] == "plan"
+    assert "no path found within the 0.5 s limit" in rec["reason"]
+    assert not (out / "preview.gif").exists()  # the stale animation of the old run is gone

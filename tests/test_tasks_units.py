@@ -1,0 +1,71 @@
+"""Task building blocks: the plan timeline, object choice from grasps.json, the robot-points filter."""
+
+import numpy as np
+import pytest
+
+from bimanual_app.hardware import JointTrajectory
+from bimanual_app.io_utils import InputError
+from bimanual_app.tasks import Phase, TaskPlan, handover_candidates, joint_candidates
+from bimanual_app.tasks._grasps import choose
+from bimanual_app.tasks._motion import robot_points_mask
+
+
+def test_timeline_joins_phases_on_one_clock_and_idle_arms_hold():
+    q0 = {"primary": np.zeros(6), "secondary": np.ones(6)}
+    plan = TaskPlan(q0, {"primary": 0.0, "secondary": 0.0})
+    q1 = np.full(6, 0.2)
+    plan.add(Phase("a", {"primary": JointTrajectory([0, 0.5, 1.0], [q0["primary"], q1 / 2, q1], [0.0, 0.03, 0.06])}))
+    plan.add(Phase("b", {"secondary": JointTrajectory([0, 2.0], [q0["secondary"], q0["secondary"] + 0.1])}))
+    with pytest.raises(ValueError, match="starts at"):
+        plan.add(Phase("c", {"primary": JointTrajectory([0, 1.0], [np.zeros(6), q1])}))  # not where it is
+    tl = plan.timeline()
+    assert tl["primary"].duration == pytest.approx(3.0) and tl["secondary"].duration == pytest.approx(3.0)
+    q, w = tl["primary"].sample(2.0)  # primary idle in phase b: holds its end and its gripper width
+    assert np.allclose(q, q1) and w == pytest.approx(0.06)
+    q, w = tl["secondary"].sample(0.5)  # secondary idle in phase a
+    assert np.allclose(q, 1.0) and w == 0.0
+    assert np.allclose(tl["secondary"].sample(3.0)[0], 1.1)
+    assert [s["phase"] for s in plan.summary()] == ["a", "b"] and plan.summary()[1]["duration_s"] == 2.0
+
+
+def _grasp(x, score=0.5):
+    T = np.eye(4)
+    T[:3, 3] = [x, 0, 0.05]
+    return {"kind": "pinch", "T_b1_g": T.tolist(), "width": 0.06, "score": score}
+
+
+def test_object_choice_takes_the_best_candidate_and_says_why():
+    g = {"pregrasp_distance": 0.09, "objects": [
+        {"id": 0, "joint_grasps": [{"kind": "pinch", "score": 0.4, "primary": _grasp(0.2), "secondary": _grasp(0.4)}],
+         "handover": None},
+        {"id": 3, "joint_grasps": [{"kind": "push", "score": 0.7,
+                                    "primary": dict(_grasp(0.2), kind="push", press=0.008, squeeze_b1=[1, 0, 0]),
+                                    "secondary": dict(_grasp(0.5), kind="push", press=0.008)}],
+         "handover": None},
+        {"id": 5, "joint_grasps": []}]}
+    cands = joint_candidates(g, "grasps.json")
+    assert [c.object_id for c in cands] == [3, 0]
+    assert cands[0].primary.kind == "push" and cands[0].primary.press == 0.008
+    assert np.allclose(cands[0].primary.squeeze_dir, [1, 0, 0]) and cands[0].primary.pre_dist == 0.09
+    mine, why = choose(cands, None, "joint-grasp", "grasps.json", [0, 3, 5])
+    assert [c.object_id for c in mine] == [3] and "best-scoring" in why and "other candidates: 0" in why
+    mine, why = choose(cands, 5, "joint-grasp", "grasps.json", [0, 3, 5])
+    assert mine == [] and "as requested" in why
+    with pytest.raises(InputError, match="no object 9"):
+        choose(cands, 9, "joint-grasp", "grasps.json", [0, 3, 5])
+    assert handover_candidates(g, "grasps.json") == []
+    bad = {"objects": [{"id": 1, "joint_grasps": [{"primary": {"T_b1_g": "x"}, "secondary": {}}]}]}
+    with pytest.raises(InputError, match="not a usable grasp"):
+        joint_candidates(bad, "grasps.json")
+
+
+def test_robot_points_around_the_bases_are_not_obstacles():
+    bases = np.array([[0.0, 0.0, 0.0], [0.6, 0.0, 0.0]])
+    pts = np.array([[0.05, 0.02, 0.15],   # the primary arm seen by a camera
+                    [0.55, 0.05, 0.20],   # the secondary arm
+                    [0.05, 0.0, 0.005],   # table right by the base
+                    [0.30, 0.0, 0.10],    # a background thing in the middle: an obstacle
+                    [0.10, 0.0, 0.05]])   # an object's point close to the base
+    labels = np.array([-1, -1, -1, -1, 2])
+    m = robot_points_mask(pts, labels, bases, np.array([0, 0, 1.0]), 0.0)
+    assert m.tolist() == [True, True, False, False, False]
