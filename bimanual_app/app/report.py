@@ -68,10 +68,11 @@ def _calibration_section(d: Path) -> str:
             parts = []
             if "rotation_deg" in u:
                 parts.append(f"±{_fmt(u['rotation_deg'], '°', 2)}")
-            if "translation_mm" in u:
-                parts.append(f"±{_fmt(u['translation_mm'], ' mm', 1)}")
-            if "scale_rel" in u:
-                parts.append(f"±{_fmt(100 * u['scale_rel'], ' %', 2)}")
+            t = u.get("translation_norm_mm", u.get("translation_mm"))
+            if t is not None:
+                parts.append(f"±{_fmt(t, ' mm', 1)}")
+            if "percent" in u:
+                parts.append(f"±{_fmt(u['percent'], ' %', 2)}")
             return " ".join(parts) or html.escape(json.dumps(u))
         if isinstance(u, (int, float)):
             return f"±{_fmt(u, '', 4)}"

@@ -42,8 +42,13 @@ def build_stages(scene: str, out: str, backend: str = "colmap", skip: tuple[str,
         stages.append(Stage("calibrate", ["calibrate", str(scene_p), "--out", str(cal)], inputs_scene + [rec],
                             [cal / "calibration.json", cal / "scene_b1.ply", cal / "calibration.png"]))
     if have("segmentation.cli"):
-        stages.append(Stage("segment", ["segment", str(cal / "scene_b1.ply"), "--out", str(seg)], [cal / "scene_b1.ply"],
-                            [seg / "segments.npz", seg / "segments.png"]))
+        seg_argv = ["segment", str(cal / "scene_b1.ply"), "--out", str(seg), "--calibration", str(cal / "calibration.json")]
+        seg_inputs = [cal / "scene_b1.ply", cal / "calibration.json"]
+        if (scene_p / "primary" / "masks").is_dir() or (scene_p / "secondary" / "masks").is_dir():
+            # per-image masks (a user's, or a synthetic scene's renders) are extra evidence for the segmenter
+            seg_argv += ["--masks", str(scene_p)]
+            seg_inputs += [scene_p / "primary" / "masks", scene_p / "secondary" / "masks"]
+        stages.append(Stage("segment", seg_argv, seg_inputs, [seg / "segments.npz", seg / "segments.png"]))
     if have("grasping.cli"):
         stages.append(Stage("grasp", ["grasp", str(cal / "scene_b1.ply"), "--segments", str(seg / "segments.npz"),
                                       "--calibration", str(cal / "calibration.json"), "--out", str(grasp)],
