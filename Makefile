@@ -13,10 +13,13 @@ demo: setup
 	$(VENV)/bin/bijcr run scenes/demo --out $(DEMO_OUT)
 
 test: setup
+	@bash tools/setup_test_deps.sh
 	$(PY) -m pytest -q -p no:cacheprovider -p no:dash
 
 bench: setup
-	$(PY) bench/calibration.py
+	@for b in calibration reconstruction segmentation motion grasping tasks; do \
+	  echo "== bench/$$b.py"; nice $(PY) bench/$$b.py || exit 1; done
+	$(PY) tools/assemble_benchmarks.py
 
 clean-venv:
 	rm -rf $(VENV)

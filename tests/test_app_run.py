@@ -1,8 +1,10 @@
 """`bijcr run`: stages in order, cached outputs reused, a failing stage named, and a self-contained report."""
 
 import base64
+import json
 import re
 import shutil
+import subprocess
 
 import pytest
 
@@ -59,3 +61,38 @@ def test_failing_stage_is_named_and_earlier_results_kept(scene, tmp_path):
     assert [r.status for r in records] == ["ran", "failed", "skipped"]
     assert "calibrate" in records[1].message and "exited with code 1" in records[1].message
     assert not (cal / "calibration.json").exists()
+
+
+_PROBE = """<script>
+window.addEventListener('load', () => {
+  const imgs = [...document.images];
+  const bad = imgs.filter(i => !(i.complete && i.naturalWidth > 0)).map(i => i.alt || i.src.slice(0, 40));
+  const vids = [...document.querySelectorAll('video')];
+  document.body.setAttribute('data-probe', JSON.stringify({images: imgs.length, broken: bad, videos: vids.length}));
+});
+</script>"""
+
+
+def test_report_renders_in_headless_chromium(scene, tmp_path):
+    """Open report.html in Debian's chromium (installed by `make test`) and check every figure loads."""
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    assert chromium, "chromium is missing: `make test` installs it (tools/setup_test_deps.sh)"
+    out = tmp_path / "out"
+    assert bijcr(["run", str(scene), "--out", str(out), "--skip", "grasp", "--skip", "joint-grasp",
+                  "--skip", "handover"]) == 0
+    page = (out / "report.html").read_text()
+    probe = tmp_path / "probe.html"
+    probe.write_text(page.replace("</body>", _PROBE + "</body>"))
+    flags = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+             "--disable-background-networking", "--disable-component-update", "--disable-sync",
+             f"--user-data-dir={tmp_path / 'profile'}", "--virtual-time-budget=5000"]
+    dom = subprocess.run([chromium, *flags, "--dump-dom", probe.as_uri()], capture_output=True, text=True,
+                         timeout=120).stdout
+    m = re.search(r"data-probe=\"([^\"]*)\"", dom)
+    assert m, "the page did not finish loading in chromium"
+    result = json.loads(m.group(1).replace("&quot;", '"'))
+    assert result["images"] >= 3 and result["broken"] == []
+    shot = tmp_path / "report.png"
+    subprocess.run([chromium, *flags, "--window-size=1200,2000", f"--screenshot={shot}", (out / "report.html").as_uri()],
+                   capture_output=True, timeout=120)
+    assert shot.exists() and shot.read_bytes()[:4] == b"\x89PNG"
