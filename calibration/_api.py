@@ -77,12 +77,17 @@ def calibrate(scene, method: str = DEFAULT_METHOD, options: CalibrationOptions |
     return res
 
 
-def scene_cloud(scene, result: CalibrationResult, conf_threshold: float | None = None, include_dropped: bool = False):
+ROBOT_RADIUS = 0.15  # m: points this close to a base's vertical axis are taken as the robot itself
+
+
+def scene_cloud(scene, result: CalibrationResult, conf_threshold: float | None = None, include_dropped: bool = False,
+                robot_radius: float = ROBOT_RADIUS):
     """Metric cloud in b1 of a calibrated scene: ``(points (K, 3), colors (K, 3) uint8 or None, info)``.
 
     Uses the point maps of the views the calibration used (a view dropped as badly registered has a point
-    map consistent with its bad pose), unless ``include_dropped``. Returns ``(empty, None, info)`` when the
-    reconstruction has no point maps.
+    map consistent with its bad pose), unless ``include_dropped``. Points of the robots themselves are
+    removed with :func:`robot_self_mask` (``robot_radius=0`` keeps them). Returns ``(empty, None, info)``
+    when the reconstruction has no point maps.
     """
     from ._cloud import metric_cloud
 
@@ -97,9 +102,40 @@ def scene_cloud(scene, result: CalibrationResult, conf_threshold: float | None =
         keys = {arm.images[i] for i in used}
         rows += [j for j, (a, k) in enumerate(zip(rec.arm, rec.image)) if int(a) == arm.index and str(k) in keys]
     rows = np.array(sorted(rows), dtype=int)
-    return metric_cloud(rec.pts3d[rows], result.T_b1_w, result.scale,
-                        None if rec.conf is None else rec.conf[rows],
-                        None if rec.colors is None else rec.colors[rows], conf_threshold)
+    points, colors, info = metric_cloud(rec.pts3d[rows], result.T_b1_w, result.scale,
+                                        None if rec.conf is None else rec.conf[rows],
+                                        None if rec.colors is None else rec.colors[rows], conf_threshold)
+    if robot_radius > 0 and len(points):
+        keep = ~robot_self_mask(points, [np.eye(4), result.T_b1_b2], robot_radius)
+        info["robot_points_removed"] = int((~keep).sum())
+        info["robot_filter_radius_m"] = robot_radius
+        points = points[keep]
+        colors = None if colors is None else colors[keep]
+        info["points"] = int(len(points))
+    return points, colors, info
+
+
+def robot_self_mask(points_b1: np.ndarray, T_b1_bases: list[np.ndarray], radius: float = ROBOT_RADIUS,
+                    above: float = 0.015) -> np.ndarray:
+    """(N,) True for points that are most likely the robots themselves (a self filter).
+
+    The wrist cameras see both arms, so the reconstruction holds them, at their capture poses. Kept in the
+    metric cloud they would be obstacles that put each arm in collision with itself in every later stage.
+    Without the arms' joint angles at capture time the arms cannot be rendered out exactly, so this drops
+    the points within ``radius`` m of each base's vertical (z) axis and more than ``above`` m over that
+    base's plane: the column where a parked or capturing arm stands. Objects that close to a base are out
+    of reach of a useful grasp anyway.
+
+    Args:
+        points_b1: (N, 3) metric points in b1.
+        T_b1_bases: list of (4, 4) base poses in b1 (``np.eye(4)`` for b1 itself, ``T_b1_b2``).
+    """
+    P = np.asarray(points_b1, dtype=np.float64)
+    mask = np.zeros(len(P), dtype=bool)
+    for T in T_b1_bases:
+        local = (P - T[:3, 3]) @ T[:3, :3]  # points in that base's frame
+        mask |= (np.hypot(local[:, 0], local[:, 1]) < radius) & (local[:, 2] > above)
+    return mask
 
 
 def _ee_link_name(scene) -> str | None:

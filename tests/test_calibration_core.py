@@ -242,3 +242,17 @@ def test_metric_cloud_exact_and_confidence_filtered():
     assert info2["points"] == int((cap.conf > 5.0).sum())
     pts3, c3, info3 = metric_cloud(cap.pts3d, r.T_b1_w, r.scale)
     assert info3["points"] == cap.conf.size and c3 is None
+
+
+def test_robot_self_filter_drops_the_arm_columns_only():
+    from calibration._api import robot_self_mask
+    from bimanual_app.transforms import make_T, so3_exp
+
+    T_b1_b2 = make_T(so3_exp(np.array([0.0, 0.0, np.pi])), [0.6, 0.0, 0.02])
+    pts = np.array([[0.05, 0.0, 0.30],    # primary arm column
+                    [0.58, 0.03, 0.20],   # secondary arm column
+                    [0.05, 0.0, 0.005],   # table next to the primary base
+                    [0.35, 0.0, 0.05],    # an object between the arms
+                    [0.60, 0.0, 0.03]])   # b2's own plate, below 1.5 cm over b2's plane
+    m = robot_self_mask(pts, [np.eye(4), T_b1_b2], radius=0.15)
+    assert m.tolist() == [True, True, False, False, False]
