@@ -133,9 +133,10 @@ def run_stages(stages: list[Stage], state_dir: Path, force: bool = False,
             with contextlib.redirect_stdout(_Tee(sys.stdout, buf)), contextlib.redirect_stderr(_Tee(sys.stderr, buf)):
                 rc = cli_main(st.argv)
             if rc != 0:
-                tail = [l for l in buf.getvalue().strip().splitlines() if l.strip()][-6:]
-                status, message = "failed", (f"'bijcr {' '.join(st.argv)}' exited with code {rc}"
-                                             + (": " + " | ".join(tail) if tail else ""))
+                # the last line a command prints is its one-line verdict; the whole log goes to the report
+                tail = [l.strip() for l in buf.getvalue().strip().splitlines() if l.strip()][-1:]
+                status, message = "failed", (f"'bijcr {st.argv[0]}' exited with code {rc}"
+                                             + (": " + tail[0][:400] if tail else ""))
             else:
                 missing = [str(o) for o in st.outputs if not Path(o).exists()]
                 if missing:

@@ -163,10 +163,6 @@ def write_report(out_dir: Path, scene_name: str, records: list[StageRecord], war
                 + "".join(status_rows) + f"</table><p>Total time of the stages run now: {total:.1f} s.</p>")
     if warnings:
         secs.append("<h2>Warnings</h2>" + "".join(f'<div class="warn">{html.escape(w)}</div>' for w in warnings))
-    failed = [r for r in records if r.status == "failed"]
-    for r in failed:
-        secs.append(f"<h2>Failure in stage '{html.escape(r.name)}'</h2><p>{html.escape(r.message)}</p>"
-                    f"<pre>{html.escape(r.log[-4000:])}</pre>")
     if (p := out_dir / "scene_preview.png").exists():
         secs.append("<h2>Capture</h2>" + _embed(p, "The capture: rendered or recorded views of both arms"))
     secs.append("<h2>Calibration</h2>" + _calibration_section(out_dir / "calibration"))
@@ -176,6 +172,9 @@ def write_report(out_dir: Path, scene_name: str, records: list[StageRecord], war
         d = out_dir / "tasks" / task
         if d.exists():
             secs.append(f"<h2>Task: {task}</h2>" + _task_section(d, task))
+    for r in (r for r in records if r.status == "failed"):
+        secs.append(f"<h2>Log of the failed stage '{html.escape(r.name)}'</h2><p>{html.escape(r.message)}</p>"
+                    f"<pre>{html.escape(r.log[-4000:])}</pre>")
     page = (f"<!doctype html><html><head><meta charset='utf-8'><title>Bi-JCR report – {html.escape(scene_name)}</title>"
             f"<style>{_CSS}</style></head><body><h1>Bi-JCR report</h1><p>Scene <b>{html.escape(scene_name)}</b>, "
             f"output folder <code>{html.escape(str(out_dir))}</code>.</p>" + "\n".join(secs) + "</body></html>")
