@@ -28,15 +28,13 @@ import argparse
 import os
 import sys
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-
-from bimanual_app.transforms import inv_T  # noqa: E402
 
 SCENES = ROOT / "out" / "bench" / "grasping" / "scenes"
 
@@ -298,7 +296,8 @@ def try_joint(sim: Sim, gripper, obj: int, pair: dict, approach: float, squeeze_
         g = pair[arm]
         T = np.asarray(g["T_b1_g"], float)
         pre = T.copy()
-        pre[:3, 3] -= approach * T[:3, 2]
+        way = np.asarray(g.get("retreat_b1", -T[:3, 2]), float)  # push contacts come in along their way in
+        pre[:3, 3] += approach * way
         sim.add_gripper(gripper, pre, g["width"])
         grips[k] = T
     # stop just off the face / around the object
@@ -454,7 +453,7 @@ def run(args) -> int:
     from bimanual_app.synth import ground_truth_cloud
     from grasping import (GripperCollider, SamplerParams, SceneOctree, load_gripper, make_arms, plan_grasps,
                           plan_to_dict, scene_cloud)
-    from grasping._objects import estimate_support, object_geometry
+    from grasping._objects import estimate_support
     from grasping._plan import PlanParams
     from bimanual_app.robots import load_robot
 
@@ -564,6 +563,17 @@ def run(args) -> int:
     lines.append(f"| joint grasp (two grippers) lifts the large object 10 cm, holds 2 s | {100 * j_rate:.0f}% ({sum(r.ok for r in joint)}/{len(joint)}) |"
                  f" >= 90% | {'PASS' if j_rate >= 0.9 else 'FAIL'} |")
     lines.append("")
+    fails: dict[str, int] = {}
+    for r in rows:
+        if not r.ok:
+            key = (f"{r.role}: " + ("no points in the cloud (not observed)" if "0 point(s)" in r.why
+                   else "no collision-free grasp" if "no collision-free" in r.why
+                   else "no grasp/pair any arm reaches" if ("reachable" in r.why or "reach" in r.why)
+                   else "physics: " + r.why.split(" (")[0]) + ("" if r.accessible else " (wedged)"))
+            fails[key] = fails.get(key, 0) + 1
+    if fails:
+        lines.append("Failures: " + "; ".join(f"{k}: {v}" for k, v in sorted(fails.items())) + ".")
+        lines.append("")
     lines.append("| scene | object | kind | grasp | graspable | result | detail |")
     lines.append("| --- | --- | --- | --- | --- | --- | --- |")
     for r in rows:

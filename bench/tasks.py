@@ -155,6 +155,7 @@ def main() -> int:
                 for k, v in r["timings"].items():
                     if k != "total":
                         stage_t[mode].setdefault(k, []).append(v)
+                r["scene"] = scene.name
                 _log(f"scene {i + 1}/{n} (seed {seed}) {mode:8s} {task:11s}: "
                      f"{'OK  ' if r['truth_ok'] else 'FAIL'} object {r.get('object')} ({r['wall']:.1f} s)"
                      + ("" if r["truth_ok"] else f" [{r['stage']}] {r['reason'][:150]}"))
@@ -214,7 +215,7 @@ def report(rows, stage_t, synth_s, n, seeds, total, args) -> str:
     if fails:
         L += ["", "Failures:", ""]
         for m, t, r in fails:
-            L.append(f"- {MODE_NAME[m]}, {t}, object {r.get('object')}: [{r['stage'] or 'preview'}] {r['reason'][:220]}")
+            L.append(f"- {r.get('scene')}, {MODE_NAME[m]}, {t}, object {r.get('object')}: [{r['stage'] or 'preview'}] {r['reason'][:220]}")
     for task in TASKS:
         rate = np.mean([r["truth_ok"] for r in rows["pipeline"][task]])
         L.append("")

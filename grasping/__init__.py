@@ -7,6 +7,7 @@ Public API:
     make_arms(robot, gripper, T_b1_b2) -> {"primary": Arm, "secondary": Arm}   (IK + collision reach filters)
     sample_grasps(geo, support, gripper, collider, others, params) -> (GraspSet, stats)
     ArmReach / ReachResult / ReachFilter               pluggable reachability: T_b_g (N,4,4) -> mask + joints
+    callable_filter(predicate)                          a reach filter from a plain predicate on poses (tests)
     scene_cloud(points, labels) / load_cloud / load_segments / load_calibration / resolve_inputs
     write_grasps_json(path, plan) / plan_to_dict(plan) / draw_plan(path, plan, points, labels)
     rotate_about_approach(T_b_g)                        the same grasp turned 180 degrees about z
@@ -24,7 +25,7 @@ from ._objects import ObjectGeometry, Support, check_graspable, estimate_support
 from ._output import draw_plan, plan_to_dict, write_grasps_json
 from ._plan import GraspPlan, ObjectPlan, PlanParams, plan_grasps
 from ._push import PushParams, push_contacts
-from ._reach import ArmReach, ReachFilter, ReachResult, pregrasp_pose
+from ._reach import ArmReach, ReachFilter, ReachResult, callable_filter, pregrasp_pose
 
 __all__ = [
     "load_gripper", "GripperModel", "GripperShape",
@@ -32,7 +33,7 @@ __all__ = [
     "sample_grasps", "SamplerParams", "GraspSet", "rotate_about_approach",
     "push_contacts", "PushParams", "JointPair", "Handover", "HandoverParams",
     "make_arms", "Arm", "ArmGrasps", "reachable_grasps", "TwoArmCheck",
-    "ArmReach", "ReachFilter", "ReachResult", "pregrasp_pose",
+    "ArmReach", "ReachFilter", "ReachResult", "callable_filter", "pregrasp_pose",
     "GripperCollider", "SceneOctree", "grippers_collide", "grippers_distance",
     "SceneCloud", "scene_cloud", "load_cloud", "load_segments", "load_calibration", "resolve_inputs",
     "ObjectGeometry", "Support", "estimate_support", "object_geometry", "check_graspable",

@@ -55,7 +55,8 @@ class SamplerParams:
     approach: pre-grasp distance back along the approach (the collision sweep's length).
     max_keep: best grasps kept per object after scoring.
     full_circle: approach from every direction around the closing axis, from below too (an object held in
-        the air, for a hand-over); otherwise only from above or the side.
+        the air, for a hand-over); otherwise only from above or the side. Also drops the score's preference
+        for approaching from above (every direction is as good in the air).
     """
 
     n_candidates: int = 500

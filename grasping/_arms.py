@@ -52,6 +52,36 @@ class ArmGrasps:
         return len(self.index)
 
 
+def _reach_either_way(arm: Arm, T_b: np.ndarray, width: np.ndarray, retreats_b1: np.ndarray, T_b_b1: np.ndarray
+                      ) -> tuple[ReachResult, np.ndarray]:
+    """Reach filter on grasps (n, 4, 4) that have several ways in (``retreats_b1`` (n, R, 3) unit directions to
+    the pre-grasp in b1, NaN where blocked): each tried in turn until one works. Returns the result and the
+    direction used (n, 3) (NaN where none worked)."""
+    n = len(T_b)
+    res = None
+    used = np.full((n, 3), np.nan)
+    for r in range(retreats_b1.shape[1]):
+        rts = retreats_b1[:, r]
+        todo = np.isfinite(rts).all(axis=1) & (np.ones(n, bool) if res is None else ~res.ok)
+        if not todo.any():
+            continue
+        sub = arm.reach(T_b[todo], width[todo], rts[todo] @ T_b_b1[:3, :3].T)
+        if res is None:
+            J = sub.q.shape[1]
+            res = ReachResult(np.zeros(n, bool), np.full((n, J), np.nan), np.full((n, J), np.nan), np.zeros(n, bool),
+                              ["no free way in"] * n)
+        for k_sub, k in enumerate(np.nonzero(todo)[0]):
+            res.ok[k], res.q[k], res.q_pre[k] = sub.ok[k_sub], sub.q[k_sub], sub.q_pre[k_sub]
+            res.flipped[k], res.reason[k] = sub.flipped[k_sub], sub.reason[k_sub]
+            if sub.ok[k_sub]:
+                used[k] = rts[k]
+    if res is None:
+        J = int(getattr(getattr(arm.reach, "robot", None), "nq_arm", 6))
+        res = ReachResult(np.zeros(n, bool), np.full((n, J), np.nan), np.full((n, J), np.nan), np.zeros(n, bool),
+                          ["no free way in"] * n)
+    return res, used
+
+
 def reachable_grasps(gs: GraspSet, arm: Arm, max_tries: int = 40, want: int = 10, batch: int = 8,
                      prior_tiers: tuple[float, ...] = (0.05, 0.08, 0.12), prefer: np.ndarray | None = None) -> ArmGrasps:
     """Check ``gs`` (best first) with ``arm``'s reach filter until ``want`` pass or ``max_tries`` are tried.
@@ -80,30 +110,10 @@ def reachable_grasps(gs: GraspSet, arm: Arm, max_tries: int = 40, want: int = 10
     while tried < n_check and len(keep) < want:
         idx = order[tried: min(tried + batch, n_check)]
         T_b = T_b_b1 @ gs.T_b1_g[idx]
-        rt_used = np.full((len(idx), 3), np.nan)
-        if "retreats" in gs.extra:  # push contacts: one of two ways in, whichever is free and reachable
-            res = None
-            for r in range(gs.extra["retreats"].shape[1]):
-                rts = gs.extra["retreats"][idx, r]
-                todo = np.isfinite(rts).all(axis=1) & (np.ones(len(idx), bool) if res is None else ~res.ok)
-                if not todo.any():
-                    continue
-                sub = arm.reach(T_b[todo], gs.width[idx][todo], rts[todo] @ T_b_b1[:3, :3].T)
-                if res is None:
-                    res = ReachResult(np.zeros(len(idx), bool), np.full((len(idx), sub.q.shape[1]), np.nan),
-                                      np.full((len(idx), sub.q.shape[1]), np.nan), np.zeros(len(idx), bool),
-                                      ["no free way in"] * len(idx))
-                for k_sub, k in enumerate(np.nonzero(todo)[0]):
-                    if sub.ok[k_sub] or not res.ok[k]:
-                        res.ok[k], res.q[k], res.q_pre[k] = sub.ok[k_sub], sub.q[k_sub], sub.q_pre[k_sub]
-                        res.flipped[k], res.reason[k] = sub.flipped[k_sub], sub.reason[k_sub]
-                        if sub.ok[k_sub]:
-                            rt_used[k] = rts[k]
-            if res is None:
-                res = ReachResult(np.zeros(len(idx), bool), np.full((len(idx), 6), np.nan), np.full((len(idx), 6), np.nan),
-                                  np.zeros(len(idx), bool), ["no free way in"] * len(idx))
+        if "retreats" in gs.extra:  # push contacts: one of their two ways in, whichever is free and reachable
+            res, rt_used = _reach_either_way(arm, T_b, gs.width[idx], gs.extra["retreats"][idx], T_b_b1)
         else:
-            res = arm.reach(T_b, gs.width[idx])
+            res, rt_used = arm.reach(T_b, gs.width[idx]), np.full((len(idx), 3), np.nan)
         for k, i in enumerate(idx):
             if res.ok[k]:
                 keep.append(int(i))
@@ -129,8 +139,8 @@ def reachable_grasps(gs: GraspSet, arm: Arm, max_tries: int = 40, want: int = 10
         sub.extra["retreat"] = np.array(rts_kept).reshape(-1, 3)  # the way in the arm uses (b1)
     sub.T_b1_g = T_used[keep] if keep else sub.T_b1_g
     J = qs[0].shape[0] if qs else int(getattr(getattr(arm.reach, "robot", None), "nq_arm", 6))
-    if len(gs) > n_check:
-        reasons["not checked (enough found, or the check budget spent)"] = len(gs) - n_check
+    if len(gs) > tried:
+        reasons["not checked (enough found, or the check budget spent)"] = len(gs) - tried
     return ArmGrasps(arm.name, sub, np.array(keep, dtype=int), np.array(qs).reshape(-1, J), np.array(qps).reshape(-1, J),
                      np.array(Ts).reshape(-1, 4, 4), tried, reasons)
 
@@ -140,8 +150,9 @@ def reachable_by_group(gs: GraspSet, arm: Arm, groups: np.ndarray, tries_per_gro
     """``reachable_grasps`` with a separate budget for each group of grasps (``groups`` (N,) labels, e.g. the
     face of a push contact), so that a group the arm cannot reach does not use up the others' checks."""
     parts = []
+    groups = np.asarray(groups)
     for gval in np.unique(groups, axis=0):
-        sel = np.nonzero(np.all(np.atleast_2d(groups.T).T == gval, axis=-1) if groups.ndim > 1 else groups == gval)[0]
+        sel = np.nonzero(np.all(groups == gval, axis=-1) if groups.ndim > 1 else groups == gval)[0]
         ag = reachable_grasps(gs.take(sel), arm, tries_per_group, want_per_group,
                               prefer=None if prefer is None else prefer[sel])
         ag.index = sel[ag.index]

@@ -5,8 +5,9 @@ Two kinds of pair:
 - ``push``: two push contacts (``_push``) on opposite faces of the object's box, approaches opposed, at
   heights within ``max_height_gap``: the grippers squeeze the object between them along a line through
   its centre. For objects wider than the stroke.
-- ``pinch``: two antipodal grasps at the two ends of a long object, on opposite sides of the centre along
-  its long axis, far enough apart that the grippers keep ``gap`` between them.
+- ``pinch``: two antipodal grasps towards the two ends of a long object, on opposite sides of the centre
+  along its long axis, at least ``min_spread`` of its length apart (farther is better), and the grippers
+  ``gap`` apart.
 
 A pair is kept when the primary reaches its grasp, the secondary reaches its own, the grippers do not
 come within ``gap`` of each other, and the two arms in those configurations do not collide (arm against
@@ -49,8 +50,8 @@ def _contact_centres(ag: ArmGrasps) -> np.ndarray:
 
 def joint_pairs(geo: ObjectGeometry, support: Support, primary: ArmGrasps, secondary: ArmGrasps,
                 collider: GripperCollider, check: TwoArmCheck | None, max_pairs: int = 5, gap: float = 0.02,
-                max_imbalance: float = 0.25, max_checks: int = 60, max_height_gap: float = 0.015
-                ) -> tuple[list[JointPair], dict]:
+                max_imbalance: float = 0.25, max_checks: int = 60, max_height_gap: float = 0.015,
+                min_spread: float = 0.4) -> tuple[list[JointPair], dict]:
     """Balanced, reachable, collision-free pairs (best first) from each arm's reachable grasps of one kind."""
     stats = {"candidates": 0, "balanced": 0, "grippers_apart": 0, "arms_apart": 0}
     if len(primary) == 0 or len(secondary) == 0:
@@ -90,6 +91,8 @@ def joint_pairs(geo: ObjectGeometry, support: Support, primary: ArmGrasps, secon
                 s1, s2 = (c1[i] - geo.centre) @ axis, (c2[j] - geo.centre) @ axis
                 if s1 * s2 >= 0:
                     continue  # same side of the centre
+                if abs(s1 - s2) < min_spread * geo.extent[0]:
+                    continue  # too close together to keep a long object level
             stats["candidates"] += 1
             if imb > max_imbalance:
                 continue
@@ -97,6 +100,8 @@ def joint_pairs(geo: ObjectGeometry, support: Support, primary: ArmGrasps, secon
             score = 0.5 * (primary.grasps.score[i] + secondary.grasps.score[j]) - 0.5 * imb
             if kind == "push":
                 score -= 0.5 * dh / max_height_gap * 0.2  # a squeeze line off the horizontal twists a little
+            else:
+                score += 0.2 * min(1.0, sep / (0.8 * geo.extent[0]))  # far apart: steadier
             cand.append((score, i, j, imb, sep))
     cand.sort(key=lambda c: -c[0])
     out: list[JointPair] = []

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bimanual_app.io_utils import InputError, Problem
+from bimanual_app.io_utils import Problem
 
 __all__ = ["Support", "ObjectGeometry", "estimate_support", "object_geometry", "check_graspable", "closed_geometry",
            "complete_by_symmetry"]

@@ -88,6 +88,8 @@ def _object_dict(op: ObjectPlan, T_b1_b2: np.ndarray | None, arms_checked: bool)
             if pair.kind == "push":
                 g["press"] = float(-ag.grasps.depth[k])
                 g["squeeze_b1"] = ag.grasps.extra["squeeze"][k]
+                g["contact_b1"] = ag.grasps.extra["contact"][k]
+                g["retreat_b1"] = ag.grasps.extra["retreat"][k]
             else:
                 g["grasp_rank"] = rank_of.get(int(ag.index[k]))
             ent[arm] = g

@@ -5,7 +5,7 @@ For each object (label >= 0):
 1. its geometry (gravity-aligned box, surface points and normals) and the checks that rule out every
    single-arm grasp (too few points, narrower than the fingers resolve, wider than the stroke);
 2. antipodal grasps against the rest of the scene map (``_antipodal``), then each arm's reach filter on
-   them, best first, in that arm's own base frame;
+   them, best first, in that arm's own base frame; when no arm reaches any, a second, denser round;
 3. its *mode*: ``joint`` when it is wider than the stroke, longer than ``large_extent`` or heavier (box
    volume x ``density``) than one arm's ``payload``; ``single`` otherwise;
 4. for ``joint`` objects, two-arm pairs (``_joint``): push pairs on opposite faces and pinch pairs at the
@@ -18,7 +18,7 @@ filter of the arm it is listed for; nothing unchecked is returned.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -48,8 +48,11 @@ class PlanParams:
     density, payload: mass estimate (box volume x density) and the most one arm lifts.
     min_object_points: fewer points than this is an empty segment.
     joint_for_all: also look for two-arm pairs on objects one arm can lift (when they are long enough).
+    max_joint_pairs: two-arm pairs kept per kind (push, pinch).
     handover: plan a hand-over for objects one arm can lift (needs both arms).
     workspace_radius: background points farther than this from every base (horizontally) are dropped.
+    retry_factor: when no arm reaches any grasp of an object, sample again with this many times the
+        candidates (and twice the reach budget); 1 turns it off.
     """
 
     sampler: SamplerParams = SamplerParams()
@@ -69,6 +72,7 @@ class PlanParams:
     handover: bool = True
     max_joint_pairs: int = 5
     workspace_radius: float = 1.0
+    retry_factor: int = 4
 
 
 @dataclass
@@ -79,7 +83,8 @@ class ObjectPlan:
     problems: why single-arm (or all) grasps are impossible. notes: other messages for the user.
     grasps: collision-free antipodal grasps, scored, best first (reach not yet applied).
     reach: arm name -> ArmGrasps (the grasps that arm reaches). push: push contacts (joint objects) and
-    push_reach: arm name -> ArmGrasps of them. joint: list of (JointPair, source) with source "pinch"/"push".
+    push_reach: arm name -> ArmGrasps of them; pinch_reach: arm name -> ArmGrasps of the pinches towards the
+    two ends (for pinch pairs). joint: JointPair list (``pair_grasps`` gives the grasp sets they index).
     handover: Handover or None. stats, timings: counts and seconds per stage.
     """
 
@@ -92,6 +97,7 @@ class ObjectPlan:
     reach: dict = field(default_factory=dict)
     push: GraspSet | None = None
     push_reach: dict = field(default_factory=dict)
+    pinch_reach: dict = field(default_factory=dict)
     joint: list = field(default_factory=list)
     handover: Handover | None = None
     free_grasps: GraspSet | None = None
@@ -101,7 +107,7 @@ class ObjectPlan:
 
     def pair_grasps(self, pair: JointPair) -> tuple[ArmGrasps, ArmGrasps]:
         """The primary's and the secondary's reachable grasp sets a joint pair indexes into."""
-        src = self.push_reach if pair.kind == "push" else self.reach
+        src = self.push_reach if pair.kind == "push" else self.pinch_reach
         return src["primary"], src["secondary"]
 
 
@@ -155,85 +161,21 @@ def plan_object(k: int, cloud: SceneCloud, support: Support, gripper: GripperMod
     others_pts = cloud.points[~mask]
     others_pts = others_pts[np.linalg.norm(others_pts - geo.centre, axis=1) < 0.5 * float(np.linalg.norm(geo.extent)) + 0.3]
     others = SceneOctree(others_pts, params.octree_resolution)
-    t1 = time.perf_counter()
-    hints = [a.reach.approach_hints(geo.centre) for a in (arms or {}).values() if hasattr(a.reach, "approach_hints")]
-    hints = np.concatenate(hints) if hints else None
-    if not too_wide:
-        plan.grasps, plan.stats["sampler"] = sample_grasps(geo, support, gripper, collider, others, sp,
-                                                           approach_hints=hints)
-        if len(plan.grasps) == 0:
-            plan.notes.append(f"no collision-free antipodal grasp among {plan.stats['sampler']['candidates']} candidates"
-                              f" ({plan.stats['sampler']['pairs']} antipodal contact pairs)")
-    else:
-        plan.grasps = GraspSet.empty(k)
-    plan.timings["sample"] = time.perf_counter() - t1
-    bound = dict(arms or {})
-    t1 = time.perf_counter()
-    for name, arm in bound.items():
-        plan.reach[name] = reachable_grasps(plan.grasps, arm, params.reach_tries, params.reach_want)
-    if bound:
-        plan.stats["reach"] = {n: {"reachable": len(a), "tried": a.tried, "why_not": a.reasons} for n, a in plan.reach.items()}
-    plan.timings["reach"] = time.perf_counter() - t1
-    if arms and plan.grasps is not None and len(plan.grasps) and not any(len(a) for a in plan.reach.values()):
-        reasons = {}
-        for a in plan.reach.values():
-            for r, c in a.reasons.items():
-                reasons[r] = reasons.get(r, 0) + c
-        top = max(reasons, key=reasons.get) if reasons else "unreachable"
-        plan.notes.append(f"none of the {len(plan.grasps)} collision-free grasps is reachable (most often: {top})")
-    two_arms = "primary" in bound and "secondary" in bound
-    check = None
-    if two_arms:
-        t1 = time.perf_counter()
-        robot = getattr(bound["primary"].reach, "robot", None)
-        if robot is not None:
-            check = TwoArmCheck(robot, gripper, bound["secondary"].T_b1_b)
+    arms = dict(arms or {})
+    _single(plan, support, gripper, collider, others, arms, params, too_wide, long_side)
+    if "primary" in arms and "secondary" in arms:
+        robot = getattr(arms["primary"].reach, "robot", None)
+        check = TwoArmCheck(robot, gripper, arms["secondary"].T_b1_b) if robot is not None else None
         if plan.mode == "joint" or (params.joint_for_all and long_side >= params.joint_min_extent):
-            pairs = []
-            plan.stats["push"] = {}
-            push = push_contacts(geo, support, gripper, collider, others, params.push, plan.stats["push"])
-            plan.push = push
-            if len(push):
-                for name, arm in bound.items():
-                    # the faces that look towards this arm's base first (the far faces are the other arm's)
-                    to_base = arm.T_b1_b[:3, 3] - push.extra["contact"]
-                    to_base -= np.outer(to_base @ support.up, support.up)
-                    to_base /= np.maximum(np.linalg.norm(to_base, axis=1, keepdims=True), 1e-9)
-                    facing = np.einsum("nk,nk->n", -push.extra["squeeze"], to_base) > 0.3
-                    plan.push_reach[name] = reachable_by_group(push, arm, push.extra["face"], params.push_tries_per_face,
-                                                               params.push_want_per_face, prefer=facing)
-                plan.stats["push_reach"] = {n: {"reachable": len(a), "tried": a.tried, "why_not": a.reasons}
-                                            for n, a in plan.push_reach.items()}
-                pp, plan.stats["joint_push"] = joint_pairs(geo, support, plan.push_reach["primary"],
-                                                           plan.push_reach["secondary"], collider, check,
-                                                           params.max_joint_pairs)
-                pairs += pp
-            if len(plan.grasps) and long_side >= params.joint_min_extent:
-                pp, plan.stats["joint_pinch"] = joint_pairs(geo, support, plan.reach["primary"], plan.reach["secondary"],
-                                                            collider, check, params.max_joint_pairs)
-                pairs += pp
-            pairs.sort(key=lambda p: -p.score)
-            plan.joint = pairs[: params.max_joint_pairs]
-            if plan.mode == "joint" and not plan.joint:
-                plan.notes.append("no balanced two-arm grasp that both arms reach without colliding"
-                                  f" ({len(push)} push contacts on its faces)")
-        plan.timings["joint"] = time.perf_counter() - t1
+            t1 = time.perf_counter()
+            _joint(plan, support, gripper, collider, others, arms, check, params, long_side)
+            plan.timings["joint"] = time.perf_counter() - t1
         if plan.mode == "single" and params.handover and len(plan.reach.get("primary", [])):
             t1 = time.perf_counter()
-            closed = closed_geometry(geo, support)
-            free_params = SamplerParams(**{**sp.__dict__, "full_circle": True})
-            plan.free_grasps, _ = sample_grasps(closed, support, gripper, collider, SceneOctree(np.zeros((0, 3))),
-                                                free_params)
-            plan.handover, plan.stats["handover"] = plan_handover(geo, support, plan.reach["primary"], plan.free_grasps,
-                                                                  bound, collider, check, params.handover_params)
-            if plan.handover is None:
-                plan.notes.append("no hand-over found: no transfer pose where the primary holds it and the secondary"
-                                  " reaches a grasp clear of the primary's fingers")
+            _handover(plan, support, gripper, collider, arms, check, params)
             plan.timings["handover"] = time.perf_counter() - t1
-    elif arms is not None and "secondary" not in bound:
+    elif arms:
         plan.notes.append("secondary arm unknown (no T_b1_b2): no joint grasps or hand-over")
-    if plan.mode == "single" and arms and not any(len(a) for a in plan.reach.values()):
-        plan.mode = "none" if plan.grasps is None or len(plan.grasps) == 0 else plan.mode
     plan.timings["total"] = time.perf_counter() - t0
     log(f"object {k}: {plan.mode}, {len(plan.grasps) if plan.grasps is not None else 0} grasps, "
         + ", ".join(f"{a}: {len(g)} reachable" for a, g in plan.reach.items())
@@ -256,6 +198,115 @@ def _workspace(cloud: SceneCloud, arms: dict[str, Arm] | None, radius: float) ->
         return cloud
     return SceneCloud(cloud.points[keep], cloud.labels[keep], None if cloud.colors is None else cloud.colors[keep],
                       cloud.table_plane, cloud.source)
+
+
+def _single(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: GripperCollider,
+            others: SceneOctree, arms: dict[str, Arm], params: PlanParams, too_wide: bool, long_side: float) -> None:
+    """Antipodal grasps of the object and each arm's reachable ones (a denser second round when none)."""
+    geo, sp = plan.geometry, params.sampler
+    hints = [a.reach.approach_hints(geo.centre) for a in arms.values() if hasattr(a.reach, "approach_hints")]
+    hints = np.concatenate(hints) if hints else None
+    t1 = time.perf_counter()
+    if too_wide:
+        plan.grasps = GraspSet.empty(plan.id)
+    else:
+        # a long object keeps more grasps: the best-scored ones sit in the middle, a two-arm pinch needs the ends
+        sp_obj = replace(sp, max_keep=3 * sp.max_keep) if long_side >= params.joint_min_extent else sp
+        plan.grasps, plan.stats["sampler"] = sample_grasps(geo, support, gripper, collider, others, sp_obj,
+                                                           approach_hints=hints)
+    plan.timings["sample"] = time.perf_counter() - t1
+    t1 = time.perf_counter()
+    for name, arm in arms.items():
+        plan.reach[name] = reachable_grasps(plan.grasps, arm, params.reach_tries, params.reach_want)
+    plan.timings["reach"] = time.perf_counter() - t1
+    if (arms and not too_wide and params.retry_factor > 1 and not any(len(a) for a in plan.reach.values())
+            and plan.stats["sampler"]["pairs"] > 0):
+        # cluttered or awkward: no grasp an arm reaches among the first candidates. Sample again, denser
+        # (collision-free grasps are rare there), and give the reach filters a larger budget.
+        t1 = time.perf_counter()
+        dense = replace(sp, n_candidates=sp.n_candidates * params.retry_factor, max_keep=2 * sp.max_keep, seed=sp.seed + 1)
+        more, plan.stats["sampler_retry"] = sample_grasps(geo, support, gripper, collider, others, dense,
+                                                          approach_hints=hints)
+        both = GraspSet.concat([plan.grasps, more]) if len(plan.grasps) else more
+        plan.grasps = both.take(np.argsort(-both.score, kind="stable"))
+        for name, arm in arms.items():
+            plan.reach[name] = reachable_grasps(plan.grasps, arm, 2 * params.reach_tries, params.reach_want)
+        plan.timings["retry"] = time.perf_counter() - t1
+    if arms:
+        plan.stats["reach"] = {n: {"reachable": len(a), "tried": a.tried, "why_not": a.reasons} for n, a in plan.reach.items()}
+    if too_wide:
+        return
+    if len(plan.grasps) == 0:
+        st = plan.stats.get("sampler_retry", plan.stats["sampler"])
+        plan.notes.append(f"no collision-free antipodal grasp among {st['candidates']} candidates"
+                          f" ({st['pairs']} antipodal contact pairs)")
+        if plan.mode == "single":
+            plan.mode = "none"
+    elif arms and not any(len(a) for a in plan.reach.values()):
+        reasons: dict[str, int] = {}
+        for a in plan.reach.values():
+            for r, c in a.reasons.items():
+                reasons[r] = reasons.get(r, 0) + c
+        top = max(reasons, key=reasons.get) if reasons else "unreachable"
+        plan.notes.append(f"none of the {len(plan.grasps)} collision-free grasps is reachable (most often: {top})")
+        if plan.mode == "single":
+            plan.mode = "none"
+
+
+def _joint(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: GripperCollider, others: SceneOctree,
+           arms: dict[str, Arm], check: TwoArmCheck | None, params: PlanParams, long_side: float) -> None:
+    """Two-arm pairs: push pairs on opposite faces, and pinch pairs towards the two ends of a long object."""
+    geo = plan.geometry
+    pairs: list[JointPair] = []
+    plan.stats["push"] = {}
+    push = push_contacts(geo, support, gripper, collider, others, params.push, plan.stats["push"])
+    plan.push = push
+    if len(push):
+        for name, arm in arms.items():
+            # each face gets its own reach budget; the faces that look towards this arm's base first
+            to_base = arm.T_b1_b[:3, 3] - push.extra["contact"]
+            to_base -= np.outer(to_base @ support.up, support.up)
+            to_base /= np.maximum(np.linalg.norm(to_base, axis=1, keepdims=True), 1e-9)
+            facing = np.einsum("nk,nk->n", -push.extra["squeeze"], to_base) > 0.3
+            plan.push_reach[name] = reachable_by_group(push, arm, push.extra["face"], params.push_tries_per_face,
+                                                       params.push_want_per_face, prefer=facing)
+        plan.stats["push_reach"] = {n: {"reachable": len(a), "tried": a.tried, "why_not": a.reasons}
+                                    for n, a in plan.push_reach.items()}
+        pp, plan.stats["joint_push"] = joint_pairs(geo, support, plan.push_reach["primary"], plan.push_reach["secondary"],
+                                                   collider, check, params.max_joint_pairs)
+        pairs += pp
+    if plan.grasps is not None and len(plan.grasps) and long_side >= params.joint_min_extent:
+        # pinches towards the two ends (the single-arm ranking favours the middle): each half of the object
+        # gets its own reach budget, the far grasps first
+        g = plan.grasps
+        s_ax = (g.T_b1_g[:, :3, 3] - g.T_b1_g[:, :3, 2] * g.depth[:, None] - geo.centre) @ geo.T_b1_box[:3, 0]
+        far = np.abs(s_ax) > 0.25 * geo.extent[0]
+        for name, arm in arms.items():
+            plan.pinch_reach[name] = reachable_by_group(g, arm, np.sign(s_ax), params.reach_tries, params.reach_want,
+                                                        prefer=far)
+        pp, plan.stats["joint_pinch"] = joint_pairs(geo, support, plan.pinch_reach["primary"],
+                                                    plan.pinch_reach["secondary"], collider, check, params.max_joint_pairs)
+        pairs += pp
+    pairs.sort(key=lambda p: -p.score)  # the best few of each kind, best first
+    plan.joint = ([p for p in pairs if p.kind == "push"][: params.max_joint_pairs]
+                  + [p for p in pairs if p.kind == "pinch"][: params.max_joint_pairs])
+    plan.joint.sort(key=lambda p: -p.score)
+    if plan.mode == "joint" and not plan.joint:
+        plan.notes.append("no balanced two-arm grasp that both arms reach without colliding"
+                          f" ({len(push)} push contacts on its faces)")
+
+
+def _handover(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: GripperCollider,
+              arms: dict[str, Arm], check: TwoArmCheck | None, params: PlanParams) -> None:
+    """A hand-over: receiver grasps sampled on the object in the air (its bottom closed, from every side)."""
+    closed = closed_geometry(plan.geometry, support)
+    free_params = replace(params.sampler, full_circle=True, max_keep=2 * params.sampler.max_keep)
+    plan.free_grasps, _ = sample_grasps(closed, support, gripper, collider, SceneOctree(np.zeros((0, 3))), free_params)
+    plan.handover, plan.stats["handover"] = plan_handover(plan.geometry, support, plan.reach["primary"], plan.free_grasps,
+                                                          arms, collider, check, params.handover_params)
+    if plan.handover is None:
+        plan.notes.append("no hand-over found: no transfer pose where the primary holds it and the secondary"
+                          " reaches a grasp clear of the primary's fingers")
 
 
 def plan_grasps(cloud: SceneCloud, gripper: GripperModel | None = None, arms: dict[str, Arm] | None = None,

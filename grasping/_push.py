@@ -131,6 +131,7 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
                 rect = (np.percentile(lat[on_face], [2, 98]), np.percentile(hgt[on_face], [2, 98]))
             for hf in params.heights:
                 c = geo.centre + face_off * n + hf * 0.5 * ext[2] * up
+                frames = []
                 for tilt in params.tilts:
                     z = -np.cos(tilt) * n - np.sin(tilt) * up
                     # the fingers are closed into one pad (2 x 2 cm for the Piper), so the press is symmetric
@@ -139,48 +140,49 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
                     for roll in params.rolls:
                         y = np.cos(roll) * t + np.sin(roll) * zt
                         y = y / np.linalg.norm(y)
-                        R = np.stack([np.cross(y, z), y, z], axis=1)
-                        # fingertips on the face: shift along the normal so the deepest tip corner touches it
-                        depth_c = [(tc @ R.T) @ -n for tc in tips]
-                        pen = max(float(dc.max()) for dc in depth_c)
-                        o = c + n * pen
-                        touch = np.concatenate([tc[dc >= dc.max() - 1e-6] for tc, dc in zip(tips, depth_c)])
-                        contact = touch.mean(axis=0) @ R.T + o  # where the fingertips meet the face (b1)
-                        T = np.eye(4)
-                        T[:3, :3], T[:3, 3] = R, o
-                        # the pads on the face: inside the box's face, and at least one of them on seen face
-                        # points whose normals are inside the friction cone (a face is often seen only in part:
-                        # the other pad then rests on the box model of the face, which the score marks down)
-                        landed, seen, align, inside = 0, 0, 1.0, True
-                        for tc in tips:
-                            tw = tc @ R.T + o - geo.centre
-                            lo_l, hi_l = (tw @ t).min() - 0.002, (tw @ t).max() + 0.002
-                            lo_h, hi_h = (tw @ up).min() - 0.002, (tw @ up).max() + 0.002
-                            inside &= (max(abs(lo_l), abs(hi_l)) <= 0.5 * ext[1 - axis] - params.edge_margin
-                                       and lo_h >= -0.5 * ext[2] + params.edge_margin and hi_h <= 0.5 * ext[2] - params.edge_margin)
-                            # the face around the fingertip (within fit_radius of it): points there, and a
-                            # plane fitted to them (per-point normals of a face seen at a grazing angle are
-                            # too noisy; a sparse face still has a well-defined plane)
-                            mid_l, mid_h = 0.5 * (lo_l + hi_l), 0.5 * (lo_h + hi_h)
-                            around = on_face & (np.hypot(lat - mid_l, hgt - mid_h) < params.fit_radius)
-                            if around.sum() >= params.min_pad_points:
-                                landed += 1
-                                seen += (around & obs).sum() >= params.min_pad_points
-                                Q = P[around] - P[around].mean(axis=0)
-                                normal = np.linalg.svd(Q, full_matrices=False)[2][-1]
-                                align = min(align, abs(float(normal @ n)))
-                            elif planar and rect[0][0] <= mid_l <= rect[0][1] and rect[1][0] <= mid_h <= rect[1][1]:
-                                landed += 1  # on the face's plane, between points seen around it
-                                align = min(align, face_align)
-                        st["candidates"] += 1
-                        if not inside or landed < len(tips) or align < cone_cos:
-                            st["off_face" if not inside else "unseen" if landed < len(tips) else "outside_cone"] += 1
-                            continue
-                        # the whole gripper above the table by the margin
-                        if support.elevation(all_corners @ R.T + o).min() < params.scene_margin + 0.002:
-                            st["near_table"] += 1
-                            continue
-                        rows.append((T, axis, sign, hf, tilt, align, ext[axis], n, seen / len(tips), contact))
+                        frames.append((tilt, np.stack([np.cross(y, z), y, z], axis=1)))
+                for tilt, R in frames:
+                    # fingertips on the face: shift along the normal so the deepest tip corner touches it
+                    depth_c = [(tc @ R.T) @ -n for tc in tips]
+                    pen = max(float(dc.max()) for dc in depth_c)
+                    o = c + n * pen
+                    touch = np.concatenate([tc[dc >= dc.max() - 1e-6] for tc, dc in zip(tips, depth_c)])
+                    contact = touch.mean(axis=0) @ R.T + o  # where the fingertips meet the face (b1)
+                    T = np.eye(4)
+                    T[:3, :3], T[:3, 3] = R, o
+                    # the pads on the face: inside the box's face, and at least one of them on seen face
+                    # points whose normals are inside the friction cone (a face is often seen only in part:
+                    # the other pad then rests on the box model of the face, which the score marks down)
+                    landed, seen, align, inside = 0, 0, 1.0, True
+                    for tc in tips:
+                        tw = tc @ R.T + o - geo.centre
+                        lo_l, hi_l = (tw @ t).min() - 0.002, (tw @ t).max() + 0.002
+                        lo_h, hi_h = (tw @ up).min() - 0.002, (tw @ up).max() + 0.002
+                        inside &= (max(abs(lo_l), abs(hi_l)) <= 0.5 * ext[1 - axis] - params.edge_margin
+                                   and lo_h >= -0.5 * ext[2] + params.edge_margin and hi_h <= 0.5 * ext[2] - params.edge_margin)
+                        # the face around the fingertip (within fit_radius of it): points there, and a
+                        # plane fitted to them (per-point normals of a face seen at a grazing angle are
+                        # too noisy; a sparse face still has a well-defined plane)
+                        mid_l, mid_h = 0.5 * (lo_l + hi_l), 0.5 * (lo_h + hi_h)
+                        around = on_face & (np.hypot(lat - mid_l, hgt - mid_h) < params.fit_radius)
+                        if around.sum() >= params.min_pad_points:
+                            landed += 1
+                            seen += (around & obs).sum() >= params.min_pad_points
+                            Q = P[around] - P[around].mean(axis=0)
+                            normal = np.linalg.svd(Q, full_matrices=False)[2][-1]
+                            align = min(align, abs(float(normal @ n)))
+                        elif planar and rect[0][0] <= mid_l <= rect[0][1] and rect[1][0] <= mid_h <= rect[1][1]:
+                            landed += 1  # on the face's plane, between points seen around it
+                            align = min(align, face_align)
+                    st["candidates"] += 1
+                    if not inside or landed < len(tips) or align < cone_cos:
+                        st["off_face" if not inside else "unseen" if landed < len(tips) else "outside_cone"] += 1
+                        continue
+                    # the whole gripper above the table by the margin
+                    if support.elevation(all_corners @ R.T + o).min() < params.scene_margin + 0.002:
+                        st["near_table"] += 1
+                        continue
+                    rows.append((T, axis, sign, hf, tilt, align, ext[axis], n, seen / len(tips), contact))
     if not rows:
         return GraspSet.empty(geo.id, kind="push")
     T = np.stack([r[0] for r in rows])
@@ -193,9 +195,9 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
     # above, for a tilted gripper); each is checked at the contact (held off) and at points back to the
     # pre-contact, and kept when free: the arm's reach filter may use either
     retreats = np.stack([nrm, -T[:, :3, 2]], axis=1)  # (n, 2, 3)
-    path_ok = np.zeros((len(T), 2), dtype=bool)
+    path_ok = np.zeros((len(T), retreats.shape[1]), dtype=bool)
     hit_obj = np.zeros(len(T), dtype=bool)
-    for r in range(2):
+    for r in range(retreats.shape[1]):
         free = np.ones(len(T), dtype=bool)
         for dist in np.linspace(0.0, params.approach, 4):
             Tk = T_off.copy()

@@ -35,7 +35,7 @@ from bimanual_app.transforms import inv_T
 
 from ._antipodal import rotate_about_approach
 
-__all__ = ["ReachResult", "ReachFilter", "ArmReach", "pregrasp_pose"]
+__all__ = ["ReachResult", "ReachFilter", "ArmReach", "pregrasp_pose", "callable_filter"]
 
 
 @dataclass

@@ -9,7 +9,8 @@ centring    horizontal distance from the contact centre to the object's centre o
             (gravity-aligned box centre), relative to the object's half-diagonal: a grasp near the centre
             lifts without a torque that twists the object out of the fingers.
 clearance   distance of the swept gripper from the rest of the scene (table, neighbours), up to 3 cm.
-approach    1 from straight above, 0.5 from the side (never from below, which the sampler excludes).
+approach    1 from straight above, 0.5 from the side (never from below, which the sampler excludes); 1 for
+            every direction when sampling an object held in the air (``full_circle``).
 """
 
 from __future__ import annotations
@@ -94,7 +95,8 @@ def score_grasps(gs, geo, support, gripper, collider, others, params):
     d_h = np.linalg.norm(d - np.outer(d @ up, up), axis=1)
     r = max(0.5 * float(np.hypot(geo.extent[0], geo.extent[1])), 1e-3)
     centring = 1.0 - np.clip(d_h / r, 0.0, 1.0)
-    approach = 0.5 + 0.5 * np.clip(-(T[:, :3, 2] @ up), 0.0, 1.0)
+    approach = (np.ones(n) if params.full_circle  # in the air (hand-over): no direction is better
+                else 0.5 + 0.5 * np.clip(-(T[:, :3, 2] @ up), 0.0, 1.0))
     clear = collider.clearance(others, T, gs.width, CLEARANCE_LEVELS) / CLEARANCE_LEVELS[-1]
     gs.terms = {"antipodal": anti, "centring": centring, "clearance": clear, "approach": approach, "contact": contact}
     gs.score = sum(WEIGHTS[k] * v for k, v in gs.terms.items())

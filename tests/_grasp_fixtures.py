@@ -128,3 +128,19 @@ def facing_T_b1_b2(distance: float = 0.6) -> np.ndarray:
     T[:3, :3] = np.diag([-1.0, -1.0, 1.0])
     T[0, 3] = distance
     return T
+
+
+def accept_all_arms(T_b1_b2: np.ndarray | None = None) -> dict:
+    """Arms whose reach filter accepts every grasp (no joint solutions): for tests of the geometry only."""
+    from grasping import Arm, callable_filter
+
+    f = callable_filter(lambda T: np.ones(len(T), dtype=bool))
+    arms = {"primary": Arm("primary", np.eye(4), f)}
+    if T_b1_b2 is not None:
+        arms["secondary"] = Arm("secondary", np.asarray(T_b1_b2, float), f)
+    return arms
+
+
+def box_scene(noise: float = 0.0, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A 4 x 6 x 5 cm box alone on the table at (0.3, 0.1): the simplest graspable object."""
+    return make_cloud([Obj("box", (0.3, 0.1), (0.04, 0.06, 0.05), 0.2)], noise=noise, seed=seed)

@@ -1,7 +1,7 @@
 """Bimanual tasks: joint grasp and hand-over, planned on the motion layer, previewed in PyBullet with
 physics, approved, and (on request) executed on the hardware.
 
-Public API:
+Public API (imported lazily, so ``bijcr --help`` loading ``bimanual_app.tasks.cli`` stays light):
     run_task(TaskOptions(task, scene, object_id=None, work=None, out=None, gui=False, execute=None,
              truth_objects=False, plan_time=5.0, ...)) -> TaskResult
     TaskPlan / Phase: a plan as phases of JointTrajectory per arm; .timeline() -> {arm: JointTrajectory}
@@ -10,20 +10,34 @@ Public API:
     TaskMotion: the motion layer for one task (IK, OMPL, Cartesian moves, validation, collision contexts)
     preview_plan(plan, inputs, robot, object_id, truth=False) -> PreviewResult
     check_calibration_scene(scene, calibration, path): refuses a calibration of another scene
+    joint_candidates / handover_candidates(grasps_json, path): the tasks' inputs from grasps.json
 CLI: ``bijcr task joint-grasp|handover SCENE`` (bimanual_app/tasks/cli.py). See docs/tasks.md.
 """
 
-from ._grasps import GraspSpec, HandoverChoice, JointChoice, handover_candidates, joint_candidates
-from ._inputs import TaskInputs, check_calibration_scene, ensure_stages, load_inputs, stage_paths
-from ._motion import PlanFailure, TaskMotion
-from ._plan import Phase, TaskPlan
-from ._planners import plan_handover, plan_joint_grasp
-from ._preview import PreviewResult, preview_plan
-from ._run import TaskOptions, TaskResult, run_task
+from __future__ import annotations
 
-__all__ = [
-    "run_task", "TaskOptions", "TaskResult", "TaskPlan", "Phase", "plan_joint_grasp", "plan_handover",
-    "TaskMotion", "PlanFailure", "preview_plan", "PreviewResult", "GraspSpec", "JointChoice", "HandoverChoice",
-    "joint_candidates", "handover_candidates", "TaskInputs", "check_calibration_scene", "ensure_stages",
-    "load_inputs", "stage_paths",
-]
+import importlib
+
+_EXPORTS = {
+    "run_task": "_run", "TaskOptions": "_run", "TaskResult": "_run",
+    "TaskPlan": "_plan", "Phase": "_plan",
+    "plan_joint_grasp": "_planners", "plan_handover": "_planners",
+    "TaskMotion": "_motion", "PlanFailure": "_motion", "robot_points_mask": "_motion",
+    "preview_plan": "_preview", "PreviewResult": "_preview",
+    "GraspSpec": "_grasps", "JointChoice": "_grasps", "HandoverChoice": "_grasps",
+    "joint_candidates": "_grasps", "handover_candidates": "_grasps",
+    "TaskInputs": "_inputs", "check_calibration_scene": "_inputs", "ensure_stages": "_inputs",
+    "load_inputs": "_inputs", "stage_paths": "_inputs",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return __all__

@@ -28,7 +28,7 @@ import numpy as np
 
 from bimanual_app.transforms import check_T, inv_T, make_T
 
-__all__ = ["PlanFailure", "TaskMotion", "translate_along", "robot_points_mask", "WAYPOINT_STEP", "BASE_RADIUS"]
+__all__ = ["PlanFailure", "TaskMotion", "translate_along", "line_poses", "robot_points_mask", "WAYPOINT_STEP", "BASE_RADIUS"]
 
 WAYPOINT_STEP = 0.01  # m between Cartesian waypoints
 MAX_JOINT_JUMP = 0.35  # rad between consecutive Cartesian waypoints: more means an IK branch switch
@@ -62,6 +62,22 @@ class PlanFailure(Exception):
         self.stage = stage
         self.message = message
         super().__init__(f"{stage}: {message}")
+
+
+def line_poses(T0: np.ndarray, T1: np.ndarray, n: int | None = None) -> np.ndarray:
+    """(n,4,4) gripper poses on the straight line T0 -> T1 (orientation by slerp), by default one every
+    ``WAYPOINT_STEP`` m (and 0.05 rad)."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    R01 = Rotation.from_matrix(np.stack([T0[:3, :3], T1[:3, :3]]))
+    if n is None:
+        dist = float(np.linalg.norm(T1[:3, 3] - T0[:3, 3]))
+        ang = float(np.linalg.norm((R01[0].inv() * R01[1]).as_rotvec()))
+        n = max(2, int(np.ceil(max(dist / WAYPOINT_STEP, ang / 0.05))) + 1)
+    s = np.linspace(0.0, 1.0, n)
+    R = Slerp([0.0, 1.0], R01)(s).as_matrix()
+    P = T0[:3, 3] + s[:, None] * (T1[:3, 3] - T0[:3, 3])
+    return np.stack([make_T(R[i], P[i]) for i in range(n)])
 
 
 def translate_along(T: np.ndarray, axis_b1: np.ndarray, dist: float) -> np.ndarray:
@@ -139,6 +155,11 @@ class TaskMotion:
             w.set_scene(self.full_map)
 
     # ------------------------------------------------------------------ IK
+    def tcp_pose(self, arm: str, q: np.ndarray) -> np.ndarray:
+        """(4,4) gripper frame in b1 of ``arm`` at configuration q (J,)."""
+        link = self.robot.tcp_link or self.robot.ee_link
+        return self.setup.T_b1_b(arm) @ self.robot.fk_link(np.asarray(q, dtype=np.float64), link)
+
     def ik(self, arm: str, T_b1_g: np.ndarray, q_seed: np.ndarray, n: int = 6) -> np.ndarray:
         """(K,J) IK solutions for the gripper frame at ``T_b1_g`` in b1, closest to ``q_seed`` first.
         Raises PlanFailure('reach') when there is none."""
@@ -211,6 +232,11 @@ class TaskMotion:
                         T = make_T(R[i], T0[:3, 3] + ui * (T1[:3, 3] - T0[:3, 3]))
                         self.stats["ik_calls"] += 1
                         r = self.setup.ik(a, T, q, n_solutions=1, max_seeds=4)
+                        if r.success and np.max(np.abs(r.q - q)) > MAX_JOINT_JUMP / parts:
+                            # the previous solution did not converge as a seed and another seed found another
+                            # branch: ask for several solutions, the closest to the previous one comes first
+                            r2 = self.setup.ik(a, T, q, n_solutions=4, max_seeds=16)
+                            r = r2 if r2.success else r
                         if not r.success:
                             raise PlanFailure("cartesian", f"the {a} gripper leaves its reach {k * WAYPOINT_STEP * 100:.0f}"
                                                            f" cm along the move (at {np.round(T[:3, 3], 3).tolist()})")
@@ -221,8 +247,9 @@ class TaskMotion:
                     break
                 prev = jump
             else:
+                step = float(max(np.linalg.norm(poses[a][k, :3, 3] - poses[a][k - 1, :3, 3]) for a in arms)) / 8
                 raise PlanFailure("cartesian", f"the {' / '.join(arms)} arm would swing to another joint branch on "
-                                               f"the move (joint step {jump:.2f} rad over {WAYPOINT_STEP * 100 / 8:.2f} cm)")
+                                               f"the move (joint step {jump:.2f} rad over {step * 100:.2f} cm)")
             for a in arms:
                 Q[a].extend(sub[a])
         return {a: np.stack(Q[a]) for a in arms}
@@ -230,40 +257,30 @@ class TaskMotion:
     def cartesian(self, moves: dict, q_now: dict, min_duration: float = 0.0) -> dict:
         """Cartesian moves of the grippers, all moving arms together on one clock.
 
-        moves: arm -> (T_from (4,4), T_to (4,4)) in b1 (a straight line, orientation by slerp), or arm ->
-            (K,4,4) gripper poses to pass through (e.g. a planned object motion applied to a grasp; every
+        moves: arm -> a tuple (T_from (4,4), T_to (4,4)) in b1 (a straight line, orientation by slerp), or
+            arm -> an array (K,4,4) of gripper poses to pass through (e.g. a planned object motion applied to a grasp; every
             arm given so must have the same K, about 1 cm apart);
         returns arm -> _Traj, validated with the other arm held at ``q_now``.
         """
-        from scipy.spatial.transform import Rotation, Slerp
-
         from bimanual_app.planning import JointSpace, parametrize, validate_samples
 
         self.stats["cartesian_moves"] += 1
         arms = [a for a in ("primary", "secondary") if a in moves]
-        given = {a: np.asarray(m, dtype=np.float64) for a, m in moves.items() if np.ndim(m) == 3}
+        given = {a: np.asarray(m, dtype=np.float64) for a, m in moves.items() if not isinstance(m, tuple)}
         pairs = {a: m for a, m in moves.items() if a not in given}
         if given:
             n = len(next(iter(given.values())))
             if any(len(v) != n for v in given.values()) or pairs:
                 raise ValueError("cartesian: give either waypoint arrays of one length for every arm, or (from, to) pairs")
         else:
-            dist = max(float(np.linalg.norm(T1[:3, 3] - T0[:3, 3])) for T0, T1 in pairs.values())
-            ang = max(float(np.linalg.norm((Rotation.from_matrix(T0[:3, :3]).inv() * Rotation.from_matrix(T1[:3, :3]))
-                                           .as_rotvec())) for T0, T1 in pairs.values())
-            n = max(2, int(np.ceil(max(dist / WAYPOINT_STEP, ang / 0.05))) + 1)
-        s = np.linspace(0.0, 1.0, n)
-        poses = {}
-        for a in arms:
-            if a in given:
-                poses[a] = given[a]
-            else:
-                T0, T1 = pairs[a]
-                slerp = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([T0[:3, :3], T1[:3, :3]])))
-                R = slerp(s).as_matrix()
-                P = T0[:3, 3] + s[:, None] * (T1[:3, 3] - T0[:3, 3])
-                poses[a] = np.stack([make_T(R[i], P[i]) for i in range(n)])
-        Qs = self.ik_path(poses, q_now)
+            n = max(len(line_poses(T0, T1)) for T0, T1 in pairs.values())
+        poses = {a: given[a] if a in given else line_poses(*pairs[a], n=n) for a in arms}
+        try:
+            Qs = self.ik_path(poses, q_now)
+        except PlanFailure as e:
+            if given or e.stage != "cartesian":
+                raise
+            Qs = self._joint_line(pairs, q_now, n, e)
         paths = [Qs[a] for a in arms]
         W = np.concatenate(paths, axis=1)
         hold = {a: q_now[a] for a in ("primary", "secondary") if a not in arms}
@@ -295,6 +312,29 @@ class TaskMotion:
             rep = validate_samples(JointSpace(self.world, arms, {}), times, Q)
         if not rep.ok:
             raise PlanFailure("validation", "the whole plan: " + "; ".join(rep.problems[:2]))
+
+    def _joint_line(self, pairs: dict, q_now: dict, n: int, err: PlanFailure, tol_m: float = 0.01,
+                    tol_rad: float = 0.1) -> dict:
+        """Fallback for a short straight move whose IK chain leaves its branch (near a wrist singularity):
+        joints interpolated linearly from ``q_now`` to the goal's IK solution closest to it, accepted when
+        the gripper stays within ``tol_m`` / ``tol_rad`` of the straight line (FK at every waypoint)."""
+        from bimanual_app.transforms import rotation_angle_between
+
+        out = {}
+        for a, (T0, T1) in pairs.items():
+            sols = self.ik(a, T1, q_now[a])
+            q1 = sols[0]
+            Q = q_now[a] + np.linspace(0.0, 1.0, 4 * n)[:, None] * (q1 - q_now[a])
+            link = self.robot.tcp_link or self.robot.ee_link
+            T = self.setup.T_b1_b(a) @ self.robot.fk_link(Q, link)
+            line = line_poses(T0, T1, n=len(Q))
+            dev = float(np.max(np.linalg.norm(T[:, :3, 3] - line[:, :3, 3], axis=1)))
+            rot = float(np.max(rotation_angle_between(T[:, :3, :3], line[:, :3, :3])))
+            if dev > tol_m or rot > tol_rad:
+                raise PlanFailure("cartesian", f"{err.message}; moving the joints directly strays {dev * 100:.1f} cm "
+                                               f"/ {np.degrees(rot):.0f} deg from the straight line")
+            out[a] = Q
+        return out
 
     def object_clear(self, T_moves: np.ndarray, skip_rise: float = 0.02, up: np.ndarray | None = None) -> list[str]:
         """Problems of the carried object along rigid motions ``T_moves`` (K,4,4) (applied to its points):

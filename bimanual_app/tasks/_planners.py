@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._grasps import GraspSpec, HandoverChoice, JointChoice
-from ._motion import PlanFailure, TaskMotion, translate_along
+from ._motion import PlanFailure, TaskMotion, line_poses, translate_along
 from ._plan import Phase, TaskPlan
 
 __all__ = ["plan_joint_grasp", "plan_handover", "LIFT", "HOLD_S"]
@@ -56,8 +56,15 @@ def _still(q, widths_from, widths_to, close_s=CLOSE_S, settle_s=SETTLE_S):
     return _jt(times, np.stack([q, q, q]), [widths_from, widths_to, widths_to])
 
 
-def _pre(g: GraspSpec) -> np.ndarray:
-    """The pre-grasp: ``g.pre_dist`` back along the approach (where the grasping stage checked it)."""
+def _pre(motion: TaskMotion, g: GraspSpec) -> np.ndarray:
+    """The pre-grasp pose in b1: where the grasping stage checked it (the gripper pose of its pre-grasp
+    joint solution ``q_pregrasp``, which also knows the direction it backed off along), else
+    ``g.pre_dist`` back along the approach."""
+    if g.q_pre is not None and np.all(np.isfinite(g.q_pre)):
+        T = motion.tcp_pose(g.arm, g.q_pre)
+        # the grasping stage's pre-grasp belongs to this grasp only if it backs off from this pose
+        if np.linalg.norm(T[:3, 3] - g.T_b1_g[:3, 3]) < 2 * g.pre_dist + 0.02:
+            return T
     return translate_along(g.T_b1_g, g.T_b1_g[:3, 2], -g.pre_dist)
 
 
@@ -93,7 +100,23 @@ def object_lift(motion: TaskMotion, up: np.ndarray, lift: float) -> tuple[np.nda
         if not problems:
             return T, how
         first = first or problems[0]
-    raise PlanFailure("validation", "lift: " + first)
+    raise PlanFailure("validation", first)
+
+
+def _face_gap(motion: TaskMotion, g: GraspSpec, lateral: float = 0.03, cap: float = 0.02) -> float:
+    """How far (m) the fingertips of a push contact still are from the object along the squeeze direction:
+    the nearest object point (its hull, the body the preview simulates) within ``lateral`` m of the squeeze
+    line. The grasping stage puts the fingertips on the face at its points' median depth; the first
+    contact is the outermost point, so the squeeze is extended by the gap (at most ``cap``) to press
+    ``press`` past it on both sides."""
+    n = g.squeeze_dir
+    d = motion.object_points - g.T_b1_g[:3, 3]
+    along = d @ n
+    side = np.linalg.norm(d - np.outer(along, n), axis=1)
+    near = along[side < lateral]
+    if not len(near):
+        return 0.0
+    return float(np.clip(near.min(), 0.0, cap))
 
 
 def _retreat_directions(T_b1_g: np.ndarray, up: np.ndarray) -> list[tuple[str, np.ndarray]]:
@@ -108,6 +131,22 @@ def _retreat_directions(T_b1_g: np.ndarray, up: np.ndarray) -> list[tuple[str, n
         if n > 0.3:
             out.append((name, d / n))
     return out
+
+
+def _approachable(motion: TaskMotion, arm: str, sols: np.ndarray, T_pre: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """The pre-grasp IK solutions (order kept) from which the straight approach to ``T`` stays on one IK
+    branch (so the OMPL goal and the approach that follows it agree); raises the first failure if none."""
+    ok, err = [], None
+    poses = line_poses(T_pre, T)  # the very waypoints the approach will use
+    for q in sols:
+        try:
+            motion.ik_path({arm: poses}, {arm: q})
+            ok.append(q)
+        except PlanFailure as e:
+            err = err or e
+    if not ok:
+        raise err
+    return np.stack(ok)
 
 
 def _goal_ik(motion: TaskMotion, arm: str, T: np.ndarray, seeds: list) -> np.ndarray:
@@ -125,7 +164,16 @@ def _goal_ik(motion: TaskMotion, arm: str, T: np.ndarray, seeds: list) -> np.nda
 
 def plan_joint_grasp(motion: TaskMotion, choice: JointChoice, q_start: dict, width_start: dict,
                      lift: float = LIFT, up: np.ndarray | None = None) -> TaskPlan:
-    """The joint-grasp plan for ``choice`` from ``q_start`` (arm -> (J,)); raises PlanFailure."""
+    """The joint-grasp plan for ``choice`` from ``q_start`` (arm -> (J,)); raises PlanFailure (its message
+    starts with the phase that could not be planned)."""
+    at = ["reach"]
+    try:
+        return _joint_grasp(motion, choice, q_start, width_start, lift, up, at)
+    except PlanFailure as e:
+        raise PlanFailure(e.stage, f"{at[-1]}: {e.message}") from None
+
+
+def _joint_grasp(motion, choice, q_start, width_start, lift, up, at) -> TaskPlan:
     up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=np.float64)
     plan = TaskPlan({a: np.asarray(q, float) for a, q in q_start.items()}, dict(width_start))
     arms = ("primary", "secondary")
@@ -138,15 +186,17 @@ def plan_joint_grasp(motion: TaskMotion, choice: JointChoice, q_start: dict, wid
                  "grasps": {a: {"T_b1_g": G[a].T_b1_g, "width": G[a].width, "press": G[a].press} for a in arms}}
 
     # 1. reach both pre-grasps together (12 DoF): the object is an obstacle
-    pre = {a: _pre(G[a]) for a in arms}
+    pre = {a: _pre(motion, G[a]) for a in arms}
     with motion.context("map", openings=w_open):
-        sols = {a: _goal_ik(motion, a, pre[a], [G[a].q_pre, q_start[a], G[a].q]) for a in arms}
+        sols = {a: _approachable(motion, a, _goal_ik(motion, a, pre[a], [G[a].q_pre, q_start[a], G[a].q]), pre[a],
+                                 G[a].T_b1_g) for a in arms}
         goals = [{"primary": s1, "secondary": s2} for s1 in sols["primary"][:3] for s2 in sols["secondary"][:3]]
         goals = [g for g in goals if not motion.valid(g)] or goals[:1]
         tr = motion.plan_free(list(arms), q_start, goals)
     plan.add(Phase("reach", {a: _jt(tr[a].times, tr[a].q, _ramp(tr[a].times, width_start[a], w_open[a]))
                              for a in arms}, "both grippers to their pre-grasps, opening", "ompl"))
 
+    at.append("approach")
     # 2. straight approach to contact (the object is cut out: the fingers meet it)
     q, _ = plan.end_state()
     with motion.context("cut", openings=w_open):
@@ -154,10 +204,11 @@ def plan_joint_grasp(motion: TaskMotion, choice: JointChoice, q_start: dict, wid
     plan.add(Phase("approach", {a: _jt(tr[a].times, tr[a].q, w_open[a]) for a in arms},
                    f"straight {G['primary'].pre_dist * 100:.0f} cm approach to the object", "cartesian"))
 
+    at.append("squeeze")
     # 3. grip: close (pinch) or squeeze (push)
     q, _ = plan.end_state()
     if push:
-        S = {a: translate_along(G[a].T_b1_g, G[a].squeeze_dir, G[a].press) for a in arms}
+        S = {a: translate_along(G[a].T_b1_g, G[a].squeeze_dir, G[a].press + _face_gap(motion, G[a])) for a in arms}
         with motion.context("cut", openings=w_open):
             tr = motion.cartesian({a: (G[a].T_b1_g, S[a]) for a in arms}, q, min_duration=1.0)
         plan.add(Phase("squeeze", {a: _jt(tr[a].times, tr[a].q, w_open[a]) for a in arms},
@@ -167,6 +218,7 @@ def plan_joint_grasp(motion: TaskMotion, choice: JointChoice, q_start: dict, wid
         plan.add(Phase("close", {a: _still(q[a], w_open[a], CLOSED) for a in arms},
                        "both grippers close (force limited)", "gripper"))
 
+    at.append("lift")
     # 4. lift: the object's motion, both grippers follow it
     q, _ = plan.end_state()
     tr, err = None, None
@@ -190,11 +242,13 @@ def plan_joint_grasp(motion: TaskMotion, choice: JointChoice, q_start: dict, wid
     plan.add(Phase("hold", {a: _jt([0.0, HOLD_S], np.stack([q[a], q[a]]), w_hold[a]) for a in arms},
                    f"held up for {HOLD_S:g} s", "hold", check="joint-lift"))
 
+    at.append("place")
     # 6. place, release, retreat
     with motion.context("cut", openings=opening_hold):
         tr = motion.cartesian({a: (T_moves @ S[a])[::-1] for a in arms}, q)
     plan.add(Phase("place", {a: _jt(tr[a].times, tr[a].q, w_hold[a]) for a in arms},
                    "object set back down", "cartesian"))
+    at.append("retreat")
     q, _ = plan.end_state()
     if push:
         with motion.context("cut", openings=w_open):
@@ -214,10 +268,19 @@ def plan_joint_grasp(motion: TaskMotion, choice: JointChoice, q_start: dict, wid
 
 def plan_handover(motion: TaskMotion, choice: HandoverChoice, q_start: dict, width_start: dict,
                   object_points: np.ndarray, up: np.ndarray | None = None) -> TaskPlan:
-    """The hand-over plan for ``choice`` from ``q_start``; raises PlanFailure.
+    """The hand-over plan for ``choice`` from ``q_start``; raises PlanFailure (its message starts with the
+    phase that could not be planned).
 
     ``object_points``: (M,3) the object's points in b1 where it lies (attached to a gripper while carried).
     """
+    at = ["reach"]
+    try:
+        return _handover(motion, choice, q_start, width_start, object_points, up, at)
+    except PlanFailure as e:
+        raise PlanFailure(e.stage, f"{at[-1]}: {e.message}") from None
+
+
+def _handover(motion, choice, q_start, width_start, object_points, up, at) -> TaskPlan:
     up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=np.float64)
     plan = TaskPlan({a: np.asarray(q, float) for a, q in q_start.items()}, dict(width_start))
     pick, gt, rec = choice.pick, choice.giver_transfer, choice.receiver
@@ -231,13 +294,15 @@ def plan_handover(motion: TaskMotion, choice: HandoverChoice, q_start: dict, wid
                             "receiver": {"T_b1_g": rec.T_b1_g, "width": wr}}}
 
     # 1-3. primary picks
-    pre_pick = _pre(pick)
+    pre_pick = _pre(motion, pick)
     with motion.context("map", openings={"primary": wg, "secondary": width_start["secondary"]}):
-        sols = _goal_ik(motion, "primary", pre_pick, [pick.q_pre, q_start["primary"], pick.q])
+        sols = _approachable(motion, "primary", _goal_ik(motion, "primary", pre_pick, [pick.q_pre, q_start["primary"],
+                                                                                      pick.q]), pre_pick, pick.T_b1_g)
         goals = [{"primary": s} for s in sols[:4]]
         tr = motion.plan_free(["primary"], q_start, goals)["primary"]
     plan.add(Phase("reach", {"primary": _jt(tr.times, tr.q, _ramp(tr.times, width_start["primary"], wg))},
                    "primary to its pre-grasp, opening", "ompl"))
+    at.append("approach")
     q, _ = plan.end_state()
     with motion.context("cut", openings={"primary": wg}):
         tr = motion.cartesian({"primary": (pre_pick, pick.T_b1_g)}, q)["primary"]
@@ -246,20 +311,40 @@ def plan_handover(motion: TaskMotion, choice: HandoverChoice, q_start: dict, wid
     q_grasp = q["primary"].copy()
     plan.add(Phase("grasp", {"primary": _still(q_grasp, wg, CLOSED)}, "primary closes (force limited)", "gripper"))
 
+    at.append("lift")
     # 4-5. lift, then carry to the transfer pose (object attached to the primary)
     attach = ("primary", q_grasp, object_points)
-    up_T = translate_along(pick.T_b1_g, up, HANDOVER_LIFT)
-    # straight up off the table: the object rests on it at the start, so it is checked by itself (its
-    # points along the motion against the map) rather than attached (it would touch the table at once)
-    lift_moves = np.stack([np.eye(4)] * 7)
-    lift_moves[:, :3, 3] = np.linspace(0.0, HANDOVER_LIFT, 7)[:, None] * up
-    problems = motion.object_clear(lift_moves, up=up)
-    if problems:
-        raise PlanFailure("validation", "lift: " + problems[0])
-    with motion.context("cut", openings={"primary": cw_g}):
-        tr = motion.cartesian({"primary": (pick.T_b1_g, up_T)}, q)["primary"]
-    plan.add(Phase("lift", {"primary": _jt(tr.times, tr.q, CLOSED)}, f"lifted {HANDOVER_LIFT * 100:.0f} cm",
+    # off the table: the object rests on it at the start, so it is checked by itself (its points along the
+    # motion against the map) rather than attached (it would touch the table at once). Straight up; near
+    # the edge of the reach, up and back towards the primary's base, or back out along the approach, and
+    # less far (the carry that follows is planned with the object attached, clear of the table).
+    to_base = -pick.T_b1_g[:3, 3] + (pick.T_b1_g[:3, 3] @ up) * up
+    to_base /= max(np.linalg.norm(to_base), 1e-9)
+    back = -pick.T_b1_g[:3, 2]
+    dirs = [("straight up", up), ("up and towards the base", (up + to_base) / np.linalg.norm(up + to_base))]
+    if back @ up > 0.3:
+        dirs.append(("back out along the approach", back))
+    tr, err = None, None
+    for dist in (HANDOVER_LIFT, 0.04):
+        for how, d in dirs:
+            moves = np.stack([np.eye(4)] * 7)
+            moves[:, :3, 3] = np.linspace(0.0, dist, 7)[:, None] * d
+            try:
+                problems = motion.object_clear(moves, up=up)
+                if problems:
+                    raise PlanFailure("validation", problems[0])
+                with motion.context("cut", openings={"primary": cw_g}):
+                    tr = motion.cartesian({"primary": (pick.T_b1_g, moves[-1] @ pick.T_b1_g)}, q)["primary"]
+                break
+            except PlanFailure as e:
+                err = err or e
+        if tr is not None:
+            break
+    if tr is None:
+        raise err
+    plan.add(Phase("lift", {"primary": _jt(tr.times, tr.q, CLOSED)}, f"lifted {dist * 100:.0f} cm ({how})",
                    "cartesian"))
+    at.append("transfer")
     q, _ = plan.end_state()
     with motion.context("attached", openings={"primary": cw_g}, attach=attach):
         sols = _goal_ik(motion, "primary", gt.T_b1_g, [gt.q, q["primary"]])
@@ -267,14 +352,17 @@ def plan_handover(motion: TaskMotion, choice: HandoverChoice, q_start: dict, wid
     plan.add(Phase("transfer", {"primary": _jt(tr.times, tr.q, CLOSED)}, "object carried to the transfer pose",
                    "ompl"))
 
+    at.append("receive-reach")
     # 6-8. the secondary takes it
     q, _ = plan.end_state()
-    pre_rec = _pre(rec)
+    pre_rec = _pre(motion, rec)
     with motion.context("attached", openings={"primary": cw_g, "secondary": wr}, attach=attach):
-        sols = _goal_ik(motion, "secondary", pre_rec, [rec.q_pre, q_start["secondary"], rec.q])
+        sols = _approachable(motion, "secondary", _goal_ik(motion, "secondary", pre_rec, [rec.q_pre, q_start["secondary"],
+                                                                                          rec.q]), pre_rec, rec.T_b1_g)
         tr = motion.plan_free(["secondary"], q, [{"secondary": s} for s in sols[:4]])["secondary"]
     plan.add(Phase("receive-reach", {"secondary": _jt(tr.times, tr.q, _ramp(tr.times, width_start["secondary"], wr))},
                    "secondary to its pre-grasp at the transfer pose", "ompl"))
+    at.append("receive-approach")
     q, _ = plan.end_state()
     with motion.context("cut", openings={"primary": cw_g, "secondary": wr}):
         tr = motion.cartesian({"secondary": (pre_rec, rec.T_b1_g)}, q)["secondary"]
@@ -290,6 +378,7 @@ def plan_handover(motion: TaskMotion, choice: HandoverChoice, q_start: dict, wid
     q, _ = plan.end_state()
     held_pts = object_points @ choice.T_move[:3, :3].T + choice.T_move[:3, 3]
     held = ("secondary", q["secondary"], held_pts)
+    at.append("retreat")
     tr, err, dist, how = None, None, 0.0, ""
     for how, direction in _retreat_directions(gt.T_b1_g, up):
         # near the reach limit, back off less far: the largest distance that is reachable and leaves the
@@ -313,6 +402,7 @@ def plan_handover(motion: TaskMotion, choice: HandoverChoice, q_start: dict, wid
         raise err
     plan.add(Phase("retreat", {"primary": _jt(tr.times, tr.q, wg)},
                    f"primary backs off {dist * 100:.0f} cm ({how})", "cartesian"))
+    at.append("home")
     # the primary goes back to its start; the object, now in the secondary's gripper, is an obstacle
     q, _ = plan.end_state()
     with motion.context("attached", openings={"primary": wg, "secondary": cw_r}, attach=held):

@@ -1,0 +1,93 @@
+"""Two-arm joint grasps (balanced, opposite sides, grippers apart) and hand-overs (fingers apart)."""
+
+import numpy as np
+import pytest
+
+from _grasp_fixtures import Obj, accept_all_arms, facing_T_b1_b2, make_cloud
+from grasping import GripperCollider, PlanParams, grippers_distance, load_gripper, plan_grasps, scene_cloud
+
+T12 = facing_T_b1_b2(0.6)
+
+
+@pytest.fixture(scope="module")
+def large_plan():
+    objs = [Obj("box", (0.3, 0.0), (0.16, 0.32, 0.10), 0.1),  # 0: needs two arms (wider than the stroke)
+            Obj("box", (0.3, 0.27), (0.30, 0.04, 0.05), 0.0)]  # 1: a long bar: pinch it at both ends
+    P, L = make_cloud(objs, table_size=(0.8, 0.8))
+    return plan_grasps(scene_cloud(P, L), arms=accept_all_arms(T12), T_b1_b2=T12,
+                       params=PlanParams(handover=False, retry_factor=1))
+
+
+def _centres(op, pair):
+    p_ag, s_ag = op.pair_grasps(pair)
+    out = []
+    for ag, i in ((p_ag, pair.i_primary), (s_ag, pair.i_secondary)):
+        g = ag.grasps
+        out.append(g.extra["contact"][i] if "contact" in g.extra else g.T_b1_g[i, :3, 3] - g.T_b1_g[i, :3, 2] * g.depth[i])
+    return out
+
+
+def test_push_pair_balanced_on_opposite_faces(large_plan):
+    op = large_plan.objects[0]
+    assert op.mode == "joint" and op.joint, op.notes
+    g = load_gripper()
+    col = GripperCollider(g)
+    for pair in op.joint:
+        assert pair.kind == "push"
+        p_ag, s_ag = op.pair_grasps(pair)
+        sq1, sq2 = p_ag.grasps.extra["squeeze"][pair.i_primary], s_ag.grasps.extra["squeeze"][pair.i_secondary]
+        assert sq1 @ sq2 < -0.99  # squeezing towards each other
+        c1, c2 = _centres(op, pair)
+        mid = 0.5 * (c1 + c2)
+        d = (c2 - c1)[:2] / np.linalg.norm((c2 - c1)[:2])
+        lateral = np.linalg.norm((mid - op.geometry.centre)[:2] - ((mid - op.geometry.centre)[:2] @ d) * d)
+        assert lateral < 0.01 and pair.imbalance <= 0.25  # the squeeze line passes by the centre
+        assert abs(c1[2] - c2[2]) <= 0.015  # at one height
+        assert c1[2] > op.geometry.centre[2] - 1e-3  # at or above the centre: it hangs below the squeeze
+        assert grippers_distance(col, p_ag.grasps.T_b1_g[pair.i_primary], p_ag.grasps.width[pair.i_primary],
+                                 s_ag.grasps.T_b1_g[pair.i_secondary], s_ag.grasps.width[pair.i_secondary]) > 0.02
+
+
+def test_pinch_pair_at_both_ends_of_a_long_bar(large_plan):
+    op = large_plan.objects[1]
+    assert op.mode == "joint"  # 30 cm long
+    pinch = [p for p in op.joint if p.kind == "pinch"]
+    assert pinch, op.stats.get("joint_pinch")
+    g = load_gripper()
+    col = GripperCollider(g)
+    axis = op.geometry.T_b1_box[:3, 0]
+    for pair in pinch:
+        c1, c2 = _centres(op, pair)
+        s1, s2 = (c1 - op.geometry.centre) @ axis, (c2 - op.geometry.centre) @ axis
+        assert s1 * s2 < 0  # opposite sides of the centre
+        assert abs(s1 + s2) <= 0.25 * 0.5 * abs(s1 - s2) + 1e-9  # balanced
+        p_ag, s_ag = op.pair_grasps(pair)
+        assert grippers_distance(col, p_ag.grasps.T_b1_g[pair.i_primary], p_ag.grasps.width[pair.i_primary],
+                                 s_ag.grasps.T_b1_g[pair.i_secondary], s_ag.grasps.width[pair.i_secondary]) > 0.02
+
+
+def test_handover_fingers_apart():
+    P, L = make_cloud([Obj("cylinder", (0.3, 0.2), (0.05, 0.05, 0.11))])
+    plan = plan_grasps(scene_cloud(P, L), arms=accept_all_arms(T12), T_b1_b2=T12,
+                       params=PlanParams(retry_factor=1))
+    op = plan.objects[0]
+    h = op.handover
+    assert op.mode == "single" and h is not None, op.notes
+    g = load_gripper()
+    col = GripperCollider(g)
+    # the giver holds the object where it picked it: its grasp moved with the object
+    G_pick = op.reach["primary"].grasps.T_b1_g[h.giver_index]
+    moved = h.T_move @ G_pick
+    flipped = moved @ np.diag([-1.0, -1.0, 1.0, 1.0])
+    assert np.allclose(h.giver_T_b1_g, moved, atol=1e-9) or np.allclose(h.giver_T_b1_g, flipped, atol=1e-9)
+    # the transfer pose is up in the air, between the bases
+    assert h.centre[2] > 0.15 and 0.1 < h.centre[0] < 0.5
+    # the two grippers (giver closed on the object, receiver closed too) keep apart
+    assert h.gap >= 0.015 - 1e-6
+    assert grippers_distance(col, h.giver_T_b1_g, h.giver_width, h.receiver["T_b1_g"], h.receiver["contact_width"]) >= 0.0149
+    # the receiver grasps the moved object: its contact centre lies inside the object's moved box
+    R = h.receiver["T_b1_g"]
+    c = R[:3, 3] - R[:3, 2] * h.receiver["depth"]
+    rel = h.T_move[:3, :3].T @ (c - h.centre)
+    box = op.geometry.T_b1_box[:3, :3].T @ rel
+    assert np.all(np.abs(box) <= op.geometry.extent / 2 + 0.005)

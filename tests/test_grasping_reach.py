@@ -1,0 +1,62 @@
+"""The reach filter on the project's IK and collision world: grasp and pre-grasp reached, joint limits, far poses."""
+
+import numpy as np
+import pytest
+
+from grasping import ArmReach, load_gripper, pregrasp_pose, rotate_about_approach
+
+
+@pytest.fixture(scope="module")
+def reach():
+    from bimanual_app.robots import load_robot
+
+    robot = load_robot("piper")
+    return robot, ArmReach(robot, load_gripper("piper"))
+
+
+def _tilted(roll_deg: float = 0.0) -> np.ndarray:
+    """A grasp 30 cm out at 8 cm height, approaching 45 degrees down and outwards, turned ``roll`` about z.
+
+    (Straight down with a vertical pre-grasp is out of the Piper's reach this close to the table: joint 5
+    spans only +-70 degrees.)"""
+    a = np.deg2rad(45.0)
+    z = np.array([np.sin(a), 0.0, -np.cos(a)])
+    y0 = np.array([0.0, 1.0, 0.0])
+    r = np.deg2rad(roll_deg)
+    y = np.cos(r) * y0 + np.sin(r) * np.cross(y0, z)
+    T = np.eye(4)
+    T[:3, :3] = np.stack([np.cross(y, z), y, z], axis=1)
+    T[:3, 3] = [0.30, 0.05, 0.08]
+    return T
+
+
+def test_reachable_grasp_and_pregrasp(reach):
+    robot, f = reach
+    T = _tilted()
+    far = T.copy()
+    far[:3, 3] = [1.2, 0.0, 0.1]  # beyond the arm's reach
+    res = f(np.stack([T, far]), np.array([0.05, 0.05]))
+    assert res.ok.tolist() == [True, False] and "reach" in res.reason[1]
+    T_used = rotate_about_approach(T) if res.flipped[0] else T
+    assert np.allclose(robot.fk_link(res.q[0], robot.tcp_link), T_used, atol=1e-3)
+    assert robot.within_limits(res.q[0]) and robot.within_limits(res.q_pre[0])
+    pre = robot.fk_link(res.q_pre[0], robot.tcp_link)
+    assert np.allclose(pre, pregrasp_pose(T_used, f.pregrasp), atol=1e-3)  # 9 cm back along the approach
+    assert 0.08 <= f.pregrasp <= 0.10
+    assert np.isnan(res.q[1]).all()
+
+
+def test_wrist_limit_uses_the_turned_grasp(reach):
+    """joint 6 spans +-120 degrees: of a grasp and the same grasp turned 180 degrees about z, the filter
+    finds the one the wrist reaches (the gripper is symmetric)."""
+    robot, f = reach
+    oks = []
+    for roll in range(0, 360, 45):
+        T = _tilted(roll)
+        res = f(T[None])
+        oks.append(bool(res.ok[0]))
+        if res.ok[0]:
+            T_used = rotate_about_approach(T) if res.flipped[0] else T
+            assert np.allclose(robot.fk_link(res.q[0], robot.tcp_link), T_used, atol=1e-3)
+            assert np.allclose(rotate_about_approach(rotate_about_approach(T)), T)
+    assert all(oks)
