@@ -81,7 +81,7 @@ ROBOT_RADIUS = 0.15  # m: points this close to a base's vertical axis are taken 
 
 
 def scene_cloud(scene, result: CalibrationResult, conf_threshold: float | None = None, include_dropped: bool = False,
-                robot_radius: float = ROBOT_RADIUS):
+                robot_radius: float = ROBOT_RADIUS, wrist_rig: bool = True, free_space: bool = True):
     """Metric cloud in b1 of a calibrated scene: ``(points (K, 3), colors (K, 3) uint8 or None, info)``.
 
     Uses the point maps of the views the calibration used (a view dropped as badly registered has a point
@@ -102,9 +102,32 @@ def scene_cloud(scene, result: CalibrationResult, conf_threshold: float | None =
         keys = {arm.images[i] for i in used}
         rows += [j for j, (a, k) in enumerate(zip(rec.arm, rec.image)) if int(a) == arm.index and str(k) in keys]
     rows = np.array(sorted(rows), dtype=int)
-    points, colors, info = metric_cloud(rec.pts3d[rows], result.T_b1_w, result.scale,
+    pts3d = rec.pts3d[rows].copy()
+    rig_pixels = {}
+    if wrist_rig:
+        from ._selfmask import wrist_rig_pixels
+
+        for arm in scene.arms:  # each arm's own fingers, found over all its registered views
+            mine = np.flatnonzero(np.asarray(rec.arm) == arm.index)
+            mask = wrist_rig_pixels(rec.pts3d[mine], rec.T_w_c[mine])
+            rig_pixels[arm.name] = int(mask.sum())
+            views = np.flatnonzero(np.asarray(rec.arm)[rows] == arm.index)
+            ys, xs = np.nonzero(mask)
+            pts3d[views[:, None], ys, xs] = np.nan
+    seen_through = 0
+    if free_space and len(rows) >= 3:
+        from ._fusion import free_space_outliers
+
+        drop = free_space_outliers(pts3d, rec.T_w_c[rows])
+        seen_through = int(drop.sum())
+        pts3d[drop] = np.nan
+    points, colors, info = metric_cloud(pts3d, result.T_b1_w, result.scale,
                                         None if rec.conf is None else rec.conf[rows],
                                         None if rec.colors is None else rec.colors[rows], conf_threshold)
+    if rig_pixels:
+        info["wrist_rig_pixels"] = rig_pixels
+    if free_space:
+        info["seen_through_removed"] = seen_through
     if robot_radius > 0 and len(points):
         keep = ~robot_self_mask(points, [np.eye(4), result.T_b1_b2], robot_radius)
         info["robot_points_removed"] = int((~keep).sum())

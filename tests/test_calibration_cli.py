@@ -53,9 +53,17 @@ def test_cli_end_to_end(tiny_scene, tmp_path, capsys):
     pcd = o3d.io.read_point_cloud(str(out / "scene_b1.ply"))
     pts, cols = np.asarray(pcd.points), np.asarray(pcd.colors)
     keep = cap.conf > data["cloud"]["conf_threshold"]
-    assert len(pts) == int(keep.sum()) and len(cols) == len(pts)
-    assert np.abs(pts - cap.points_b1[keep]).max() < 1e-4
-    assert np.allclose(cols * 255, cap.colors[keep], atol=0.5)
+    # every written point is a confident input point in b1 with its colour; the self filters (a wrist
+    # camera's rig, points other views see through) may drop a few of this random fixture's points
+    from scipy.spatial import cKDTree
+
+    expected, exp_cols = cap.points_b1[keep], cap.colors[keep]
+    assert len(cols) == len(pts) and 0.99 * len(expected) <= len(pts) <= len(expected)
+    rig = sum(data["cloud"].get("wrist_rig_pixels", {}).values()) * 5  # pixels x views per arm
+    assert len(expected) - len(pts) <= data["cloud"]["seen_through_removed"] + rig  # every drop is accounted for
+    d, idx = cKDTree(expected).query(pts)
+    assert d.max() < 1e-4
+    assert np.allclose(cols * 255, exp_cols[idx], atol=0.5)
     # picture
     from PIL import Image
 

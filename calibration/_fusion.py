@@ -1,0 +1,104 @@
+"""Multi-view consistency of the point maps: drop the points the other views see through.
+
+A foundation model's (or SfM's) per-view point maps disagree where a view's pose or depth is off: a
+view registered 2 cm too high lays a second table 2 cm over the real one, and a wrist camera's view of
+the other arm or of its own fingers puts floating blobs where the other views see free space. Fused
+as they are, those points become phantom obstacles for the collision map and phantom objects for the
+segmenter. This is the free-space test of depth-map fusion (as in COLMAP's stereo fusion or KinectFusion's
+visibility checks): a point of view v is projected into every other view u; if it lies clearly *in
+front of* the surface u sees at that pixel, u looked through the place where the point claims to be
+(a vote against it); if it lies on that surface, a vote for it; behind it, u cannot tell (occluded).
+A point with at least ``min_votes`` votes against and more against than for is dropped.
+
+Everything stays in the reconstruction's own frame and scale (tolerances are relative to depth). The
+intrinsics of each point map are fitted from the map itself (each pixel's camera-frame ray), so the
+test needs nothing but ``pts3d`` and ``T_w_c``.
+
+Written with numpy: the test is a projection and a per-pixel comparison over all view pairs, which
+Open3D's and pycolmap's fusion only offer on their own depth-map formats and files.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bimanual_app.transforms import check_shape
+
+__all__ = ["free_space_outliers", "pointmap_intrinsics"]
+
+TOL_REL = 0.05  # a point is "in front of" a surface when nearer than (1 - TOL_REL) times its depth
+MIN_VOTES = 2
+
+
+def pointmap_intrinsics(pts_c: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(4,) ``fx, fy, cx, cy`` of one point map, in its own pixels, by least squares on
+    ``col = fx x/z + cx`` and ``row = fy y/z + cy``.
+
+    Args:
+        pts_c: (H, W, 3) points in the camera frame (z forward).
+        valid: (H, W) bool, the pixels to fit (finite, z > 0); at least 3 needed.
+    """
+    H, W = valid.shape
+    if valid.sum() < 3:
+        return np.array([np.nan] * 4)
+    cols, rows = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
+    z = pts_c[..., 2][valid]
+    out = []
+    for k, pix in ((0, cols), (1, rows)):
+        A = np.stack([pts_c[..., k][valid] / z, np.ones_like(z)], axis=1)
+        out.append(np.linalg.lstsq(A, pix[valid], rcond=None)[0])
+    (fx, cx), (fy, cy) = out
+    return np.array([fx, fy, cx, cy])
+
+
+def free_space_outliers(pts3d_w: np.ndarray, T_w_c: np.ndarray, valid: np.ndarray | None = None,
+                        tol_rel: float = TOL_REL, min_votes: int = MIN_VOTES) -> np.ndarray:
+    """(V, H, W) bool: the points other views see through (see the module docstring).
+
+    Args:
+        pts3d_w: (V, H, W, 3) point maps in the reconstruction frame w.
+        T_w_c: (V, 4, 4) their camera poses in w.
+        valid: (V, H, W) bool, the points taking part (default: every finite point in front of its
+            camera). Only valid points vote and are judged.
+        tol_rel: relative depth tolerance (0.05: 5 cm at 1 m).
+        min_votes: the fewest votes against that can drop a point.
+    """
+    from scipy.ndimage import maximum_filter, minimum_filter
+
+    P = check_shape("pts3d", np.asarray(pts3d_w), (None, None, None, 3)).astype(np.float64)
+    V, H, W = P.shape[:3]
+    T = check_shape("T_w_c", np.asarray(T_w_c, dtype=np.float64), (V, 4, 4))
+    R, t = T[:, :3, :3], T[:, :3, 3]
+    Pc = np.einsum("vji,vhwj->vhwi", R, P - t[:, None, None, :])  # p_c = R^T (p_w - t)
+    ok = np.all(np.isfinite(Pc), axis=-1) & (np.nan_to_num(Pc[..., 2], nan=-1.0) > 0)
+    if valid is not None:
+        ok &= check_shape("valid", np.asarray(valid, dtype=bool), (V, H, W))
+    K = np.stack([pointmap_intrinsics(Pc[v], ok[v]) for v in range(V)])
+    # the surface each view sees near a pixel: nearest / farthest depth over its 3x3 neighbours, so that a
+    # point on an object's silhouette is compared with the object, not the background beside it
+    Z = np.where(ok, Pc[..., 2], np.inf)
+    z_near = np.stack([minimum_filter(Z[v], size=3, mode="nearest") for v in range(V)])
+    z_far = np.stack([maximum_filter(np.where(ok[v], Z[v], -np.inf), size=3, mode="nearest") for v in range(V)])
+    out = np.zeros((V, H, W), dtype=bool)
+    for v in range(V):
+        X = P[v][ok[v]]
+        against = np.zeros(len(X), dtype=np.int32)
+        support = np.zeros(len(X), dtype=np.int32)
+        for u in range(V):
+            if u == v or not np.all(np.isfinite(K[u])):
+                continue
+            c = (X - t[u]) @ R[u]
+            z = c[:, 2]
+            front = z > 1e-9
+            zs = np.where(front, z, 1.0)
+            col = np.round(K[u, 0] * c[:, 0] / zs + K[u, 2])
+            row = np.round(K[u, 1] * c[:, 1] / zs + K[u, 3])
+            seen = front & (col >= 0) & (col < W) & (row >= 0) & (row < H)
+            idx = np.flatnonzero(seen)
+            r, cc = row[idx].astype(np.int64), col[idx].astype(np.int64)
+            zn, zf, zi = z_near[u][r, cc], z_far[u][r, cc], z[idx]
+            has = np.isfinite(zn)
+            against[idx] += has & (zi < (1.0 - tol_rel) * zn)
+            support[idx] += has & (zi >= (1.0 - tol_rel) * zn) & (zi <= (1.0 + tol_rel) * zf)
+        out[v][ok[v]] = (against >= min_votes) & (against > support)
+    return out

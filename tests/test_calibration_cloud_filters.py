@@ -1,0 +1,102 @@
+"""The metric cloud's self filters: each wrist camera's view of its own gripper, and points other views see
+through (a misregistered view's phantom surface), on point maps rendered here from known geometry."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bimanual_app.transforms import make_T
+from calibration._fusion import free_space_outliers, pointmap_intrinsics
+from calibration._selfmask import wrist_rig_pixels
+
+H, W, F = 48, 64, 50.0
+
+
+def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """(4,4) T_w_c of a camera at ``eye`` looking at ``target`` (z forward, y down)."""
+    z = target - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return make_T(np.stack([x, y, z], axis=1), eye)
+
+
+def render_plane(T_w_c: np.ndarray, height: float = 0.0) -> np.ndarray:
+    """(H,W,3) points in w where the pixel rays hit the plane z = height (NaN where they miss)."""
+    cols, rows = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
+    rays_c = np.stack([(cols - W / 2) / F, (rows - H / 2) / F, np.ones_like(cols)], axis=-1)
+    rays_w = rays_c @ T_w_c[:3, :3].T
+    o = T_w_c[:3, 3]
+    s = (height - o[2]) / rays_w[..., 2]
+    P = o + s[..., None] * rays_w
+    P[~(s > 0)] = np.nan
+    return P
+
+
+def views(n: int = 8, radius: float = 0.5, up: float = 0.45) -> np.ndarray:
+    ang = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    return np.stack([look_at(np.array([radius * np.cos(a), radius * np.sin(a), up]), np.zeros(3)) for a in ang])
+
+
+def test_pointmap_intrinsics_recovers_the_pinhole():
+    T = views(1)[0]
+    P = render_plane(T)
+    Pc = (P - T[:3, 3]) @ T[:3, :3]
+    K = pointmap_intrinsics(Pc, np.all(np.isfinite(Pc), axis=-1))
+    assert np.allclose(K, [F, F, W / 2, H / 2], atol=1e-6)
+
+
+def test_wrist_rig_pixels_finds_the_fingers_and_nothing_else():
+    T = views(8)
+    maps = np.stack([render_plane(t) for t in T])
+    # the fingers: a patch at the bottom of every image, 12 cm in front of the camera (camera frame)
+    rig = np.zeros((H, W), bool)
+    rig[40:, 20:44] = True
+    cols, rows = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
+    finger_c = np.stack([(cols - W / 2) / F, (rows - H / 2) / F, np.ones_like(cols)], -1) * 0.12
+    for v, t in enumerate(T):
+        noise = 1 + 0.01 * np.random.default_rng(v).standard_normal((H, W, 1))  # 1 % depth noise
+        maps[v][rig] = (finger_c[rig] * noise[rig]) @ t[:3, :3].T + t[:3, 3]
+    found = wrist_rig_pixels(maps, T)
+    assert found.shape == (H, W)
+    assert found[rig].all()
+    assert not found[~rig].any()
+    # too few views to tell the rig from the scene
+    assert not wrist_rig_pixels(maps[:2], T[:2]).any()
+    with pytest.raises(ValueError, match="T_w_c"):
+        wrist_rig_pixels(maps, T[:3])
+
+
+def test_free_space_drops_a_misregistered_layer_and_keeps_the_table():
+    T = views(8)
+    maps = np.stack([render_plane(t) for t in T])
+    ghost = render_plane(T[0], height=0.04)  # view 0's table 4 cm too high: a phantom layer
+    maps[0] = ghost
+    out = free_space_outliers(maps, T)
+    assert out.shape == maps.shape[:3]
+    seen = np.all(np.isfinite(maps), axis=-1)
+    # most of the phantom layer goes (its rim is seen by no other view)
+    assert out[0][seen[0]].mean() > 0.8
+    # the consistent views keep (nearly) all of their table
+    assert out[1:][seen[1:]].mean() < 0.01
+
+
+def test_free_space_keeps_a_real_object_seen_by_all_views():
+    T = views(8)
+    maps = np.stack([render_plane(t) for t in T])
+    box = np.zeros((len(T), H, W), bool)
+    # a tall thin post at the origin: pixels whose table point lies within 3 cm of it show the post instead
+    for v, t in enumerate(T):
+        P = maps[v]
+        r = np.linalg.norm(P[..., :2], axis=-1)
+        hit = r < 0.03
+        o = t[:3, 3]
+        d = P[hit] - o
+        # move the hit along its ray to the post's side facing the camera (radius 3 cm cylinder, crude)
+        s = 1.0 - 0.03 / np.maximum(np.linalg.norm(d[:, :2], axis=1), 1e-9)
+        P[hit] = o + d * np.clip(s, 0.5, 1.0)[:, None]
+        box[v] = hit
+    out = free_space_outliers(maps, T)
+    assert out[box].mean() < 0.05
