@@ -10,7 +10,8 @@ Choices:
   before the hull is taken: the body then stands on the table like the real object does.
 - Stray points (segmentation bleed, depth noise) would inflate a hull; points whose mean distance to
   their k nearest neighbours is far above the typical value are dropped first (the statistical outlier
-  test of PCL / Open3D, written with scipy's cKDTree to avoid loading Open3D for it).
+  test of PCL / Open3D, written with scipy's cKDTree to avoid loading Open3D for it); then the outermost 2%
+  in every horizontal direction and in height (:func:`trim_outer`): noisy faces spread outwards.
 - Mass = volume x density (default 400 kg/m^3, between cardboard boxes and wood), clipped to
   [0.02, 1.5] kg (the Piper's payload is about 1.5 kg).
 """
@@ -24,10 +25,11 @@ import numpy as np
 from bimanual_app.transforms import check_shape, make_T
 
 __all__ = ["TablePlane", "BodyShape", "fit_table", "table_from_plane", "shape_from_points", "box_shape",
-           "remove_outliers", "DEFAULT_DENSITY", "MASS_RANGE"]
+           "remove_outliers", "trim_outer", "DEFAULT_DENSITY", "MASS_RANGE"]
 
 DEFAULT_DENSITY = 400.0  # kg/m^3
 MASS_RANGE = (0.02, 1.5)  # kg
+OUTER_PERCENTILE = 98.0  # trim_outer: the body's faces sit at this percentile of the points, not their extreme
 
 
 @dataclass
@@ -176,12 +178,36 @@ def remove_outliers(points: np.ndarray, k: int = 8, std_ratio: float = 2.5) -> n
     return p[keep]
 
 
+def trim_outer(points: np.ndarray, up: np.ndarray, q: float = OUTER_PERCENTILE, n_dirs: int = 32) -> np.ndarray:
+    """Points (N,3) without the outermost ``100 - q`` % in any horizontal direction (``n_dirs`` directions
+    perpendicular to ``up``) and above the ``q`` th percentile of height.
+
+    A convex hull is set by its outermost points; in a fused reconstruction those are the noise and the
+    views registered a little off, which spread each face outwards by their error (a centimetre at the
+    paper's noise). A body that much too large is touched too early by a gripper squeezing it, so the
+    preview would see a push where the real object is still a centimetre away.
+    """
+    P = check_shape("points", np.asarray(points, dtype=np.float64), (None, 3))
+    if len(P) < 50:  # too few for percentiles to mean anything
+        return P
+    R = _frame_from_normal(np.asarray(up, dtype=np.float64))
+    local = P @ R
+    ang = np.linspace(0.0, np.pi, n_dirs, endpoint=False)
+    D = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    proj = local[:, :2] @ D.T  # (N, n_dirs)
+    hi = np.percentile(proj, q, axis=0)
+    lo = np.percentile(proj, 100.0 - q, axis=0)
+    keep = np.all((proj <= hi) & (proj >= lo), axis=1) & (local[:, 2] <= np.percentile(local[:, 2], q))
+    return P[keep] if keep.sum() >= 10 else P
+
+
 def _mass(volume: float, density: float) -> float:
     return float(np.clip(volume * density, *MASS_RANGE))
 
 
 def shape_from_points(points: np.ndarray, table: TablePlane | None = None, kind: str = "hull",
-                      density: float = DEFAULT_DENSITY, max_points: int = 4000, seed: int = 0) -> BodyShape:
+                      density: float = DEFAULT_DENSITY, max_points: int = 4000, seed: int = 0,
+                      trim: bool = True) -> BodyShape:
     """A collision shape for one segmented object from its points (N,3) in b1.
 
     Args:
@@ -190,6 +216,8 @@ def shape_from_points(points: np.ndarray, table: TablePlane | None = None, kind:
         kind: ``"hull"`` (convex hull, scipy/Qhull) or ``"box"`` (box aligned with the table normal, yaw
             from the minimum-area rectangle of the footprint, via trimesh).
         density: kg/m^3 for the mass.
+        trim: drop the outermost 2% of the points in every horizontal direction and in height first
+            (:func:`trim_outer`), so that noise does not inflate the body.
     Raises:
         ValueError: too few points, or a degenerate (flat) set.
     """
@@ -203,6 +231,8 @@ def shape_from_points(points: np.ndarray, table: TablePlane | None = None, kind:
         p = p[np.random.default_rng(seed).choice(len(p), max_points, replace=False)]
     p = remove_outliers(p)
     up = np.array([0.0, 0.0, 1.0]) if table is None else table.normal
+    if trim:
+        p = trim_outer(p, up)
     if table is not None:
         h = table.height(p)
         p = p[h > -0.01]  # points below the table top are noise

@@ -33,6 +33,7 @@ __all__ = ["PlanFailure", "TaskMotion", "translate_along", "line_poses", "robot_
 WAYPOINT_STEP = 0.01  # m between Cartesian waypoints
 MAX_JOINT_JUMP = 0.35  # rad between consecutive Cartesian waypoints: more means an IK branch switch
 BASE_RADIUS = 0.15  # m: background points this close to a base's vertical axis are the robot itself
+CONTACT_MARGIN = 0.004  # m: clearance of the moves in contact; the grasping stage's arm margin (ArmReach)
 
 
 def robot_points_mask(points: np.ndarray, labels: np.ndarray, bases_b1: np.ndarray, up: np.ndarray,
@@ -110,17 +111,20 @@ class TaskMotion:
         segment_points: (K,3) the object's points in the cloud (cut out of the map with ``cut_radius``).
         plan_time: OMPL time limit per query (s).
         speed: fraction of the velocity/acceleration limits used.
-        margin: collision margin (m).
+        margin: collision margin (m) of free motions.
+        contact_margin: collision margin (m) of the straight moves in contact (see :meth:`context`).
     """
 
     def __init__(self, robot, T_b1_b2: np.ndarray, points: np.ndarray, object_points: np.ndarray,
-                 segment_points: np.ndarray | None = None, plan_time: float = 5.0, speed: float = 0.5, margin: float = 0.01, cut_radius: float = 0.015):
+                 segment_points: np.ndarray | None = None, plan_time: float = 5.0, speed: float = 0.5, margin: float = 0.01,
+                 cut_radius: float = 0.015, contact_margin: float = CONTACT_MARGIN):
         from bimanual_app.planning import BimanualSetup
 
         self.robot = robot
         self.setup = BimanualSetup(robot, check_T("T_b1_b2", T_b1_b2), points, margin=margin, speed=speed)
         self.world = self.setup.world
         self.plan_time = float(plan_time)
+        self.contact_margin = float(contact_margin)
         self.speed = float(speed)
         self.object_points = np.asarray(object_points, dtype=np.float64)
         self.full_map = self.world.scene
@@ -136,8 +140,16 @@ class TaskMotion:
         object_mode: ``map`` (the object is an obstacle), ``cut`` (ignored: the fingers meet it), or
             ``attached`` (cut from the map and attached to ``attach = (arm, q_at_attach, points_b1)``).
         openings: arm name -> gripper opening (m) for the finger shapes.
+
+        In ``cut`` (the slow straight moves in contact: approach, squeeze, lift, place, retreat) the arms
+        keep ``contact_margin`` from the scene instead of ``margin``: the clearance the grasping stage
+        checked its grasps and pre-grasps with. With the free-motion margin, a grasp whose fingers pass
+        5 mm over the table or a neighbour -- checked and accepted there -- could never be approached.
         """
         w = self.world
+        old_margin = w.margin
+        if object_mode == "cut":
+            w.margin = self.contact_margin
         old_openings = {a.name: a.opening for a in w.arms}
         w.set_scene(self.full_map if object_mode == "map" else self.cut_map)
         for arm, o in (openings or {}).items():
@@ -153,6 +165,7 @@ class TaskMotion:
             for arm, o in old_openings.items():
                 w.set_opening(arm, o)
             w.set_scene(self.full_map)
+            w.margin = old_margin
 
     # ------------------------------------------------------------------ IK
     def tcp_pose(self, arm: str, q: np.ndarray) -> np.ndarray:

@@ -222,7 +222,7 @@ def _joint_grasp(motion, choice, q_start, width_start, lift, up, at) -> TaskPlan
     # 4. lift: the object's motion, both grippers follow it
     q, _ = plan.end_state()
     tr, err = None, None
-    for h in (lift, 0.8 * lift):  # near the top of the reach, lift a little less (10 cm are needed)
+    for h in (lift, 0.8 * lift, max(0.72 * lift, 0.108)):  # near the top of the reach, lift less (10 cm needed)
         try:
             T_moves, how = object_lift(motion, up, h)
             with motion.context("cut", openings=opening_hold):
