@@ -163,7 +163,9 @@ class CollisionWorld:
         scene: SceneMap, (N,3) points in b1, or None (no scene).
         robot2: RobotModel of the secondary arm (default: the same model as the primary).
         resolution: voxel size of the scene map (m) when ``scene`` is points.
-        margin: required clearance to the scene and between the arms (m).
+        margin: required clearance to the scene and between the arms (m). The clearance to the scene may be
+            changed later (``world.margin``, e.g. for moves in contact); the one between the arms stays
+            ``arm_margin``, this value.
         self_margin: required clearance between non-adjacent links of one arm (m).
         openings: gripper opening of each arm (m) used for the finger shapes.
         crop: drop scene points farther than reach + 0.3 m from every base (they cannot matter).
@@ -177,6 +179,7 @@ class CollisionWorld:
         if T_b1_b2 is not None:
             self.arms.append(_Arm(ARM_NAMES[1], robot2 or robot, T_b1_b2, openings[1], step))
         self.margin = float(margin)
+        self.arm_margin = float(margin)
         self.self_margin = float(self_margin)
         self.resolution = float(resolution)
         if scene is None or isinstance(scene, SceneMap):
@@ -323,7 +326,7 @@ class CollisionWorld:
             for i in range(S1):
                 for j in range(S2):
                     pairs.append((i, offs[1] + j))
-                    margins.append(self.margin)
+                    margins.append(self.arm_margin)
                     kinds.append("arms")
         cat = lambda f: np.concatenate([f(a) for a in self.arms])  # noqa: E731
         P = np.array(pairs, dtype=int).reshape(-1, 2)
@@ -487,6 +490,6 @@ class CollisionWorld:
                 for s2, g2 in enumerate(a2.shapes.shapes):
                     d = dist(g1.geometry, a1._tfs[s1], g2.geometry, a2._tfs[s2])
                     best = min(best, (d, g1.name, g2.name))
-                    note(d, self.margin, f"primary {g1.name} / secondary {g2.name}")
+                    note(d, self.arm_margin, f"primary {g1.name} / secondary {g2.name}")
             rep.arm_arm = best
         return rep

@@ -311,20 +311,30 @@ class TaskMotion:
             out[a] = _Traj(times, Q[:, sl].copy())
         return out
 
-    def validate_timeline(self, timeline: dict) -> None:
+    def validate_timeline(self, timeline: dict, openings: list[tuple[float, float, dict]] | None = None) -> None:
         """Validate the whole plan (arm -> JointTrajectory, one clock) as the hardware will run it: both
         arms sampled at the union of their sample times, joint / velocity / acceleration limits and
         collisions (arms against the scene with the target object cut out, and against each other)
-        densely, with ``validate_samples``. Raises PlanFailure."""
+        densely, with ``validate_samples``. Raises PlanFailure.
+
+        openings: ``(t_start, t_end, arm -> opening)`` spans (the phases, :meth:`TaskPlan.opening_spans`):
+            the fingers' shapes in each span are those of its widest opening, so an arm holding an object
+            is checked with its fingers where they are, not closed. Default: one span, the world's openings.
+        """
         from bimanual_app.planning import JointSpace, validate_samples
 
         arms = [a for a in ("primary", "secondary") if a in timeline]
         times = np.unique(np.concatenate([np.asarray(timeline[a].times) for a in arms]))
         Q = np.concatenate([np.stack([timeline[a].sample(t)[0] for t in times]) for a in arms], axis=1)
-        with self.context("cut"):
-            rep = validate_samples(JointSpace(self.world, arms, {}), times, Q)
-        if not rep.ok:
-            raise PlanFailure("validation", "the whole plan: " + "; ".join(rep.problems[:2]))
+        spans = openings or [(float(times[0]), float(times[-1]), {})]
+        for t0, t1, widths in spans:
+            sel = (times >= t0 - 1e-9) & (times <= t1 + 1e-9)
+            if sel.sum() < 2:
+                continue
+            with self.context("cut", openings=widths):
+                rep = validate_samples(JointSpace(self.world, arms, {}), times[sel] - times[sel][0], Q[sel])
+            if not rep.ok:
+                raise PlanFailure("validation", f"the whole plan ({t0:.2f}-{t1:.2f} s): " + "; ".join(rep.problems[:2]))
 
     def _joint_line(self, pairs: dict, q_now: dict, n: int, err: PlanFailure, tol_m: float = 0.01,
                     tol_rad: float = 0.1) -> dict:

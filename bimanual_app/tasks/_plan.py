@@ -136,6 +136,15 @@ class TaskPlan:
                 out[arm] = JointTrajectory(np.array(ts), np.array(qs), np.array(gs))
         return out
 
+    def opening_spans(self) -> list[tuple[float, float, dict]]:
+        """Per phase on the shared clock: ``(t_start, t_end, arm -> widest gripper opening in it)``."""
+        out, t0 = [], 0.0
+        for k, ph in enumerate(self.phases):
+            trs = self.phase_trajectories(k)
+            out.append((t0, t0 + ph.duration, {a: float(np.max(tr.gripper)) for a, tr in trs.items()}))
+            t0 += ph.duration
+        return out
+
     def summary(self) -> list[dict]:
         """Per phase: name, duration (s), number of waypoints, planner, note."""
         return [{"phase": ph.name, "duration_s": round(ph.duration, 3), "n_waypoints": ph.n_waypoints,

@@ -240,7 +240,7 @@ def _run_loaded(opts, scene, inputs, robot, staging: OutputDir, timings: dict) -
             return fail(stage, f"no valid plan for object {oid}{more}: {e.message}")
         timeline = plan.timeline()
         try:
-            motion.validate_timeline(timeline)  # the exact samples the preview and the hardware get
+            motion.validate_timeline(timeline, plan.opening_spans())  # the samples the preview and hardware get
         except PlanFailure as e:
             return fail("plan", f"the assembled plan failed validation: {e.message}")
         timings["plan"] = time.perf_counter() - t
