@@ -45,6 +45,8 @@ class PushParams:
     heights: contact heights above the box centre, as fractions of the box's half height (above the centre:
         the object hangs below the squeeze line; higher is easier to reach for an arm on the table).
     tilts: approach tilts down from horizontal (radians; negative: pointing slightly up).
+    swivels: approach turns about the vertical away from the face normal (radians): an arm beside the face
+        rather than in front of it reaches it turned; the squeeze stays along the face normal.
     press: how far past the face the fingertips are driven to squeeze (the grasp's ``depth`` is -press).
     standoff: the gap kept for the collision check of the approach (the fingertips stop at the face).
     pad_depth: points within this distance of the face plane count as under a pad.
@@ -60,6 +62,7 @@ class PushParams:
     heights: tuple[float, ...] = (0.3, 0.1, 0.5, 0.7)
     tilts: tuple[float, ...] = (np.deg2rad(-15.0), 0.0, np.deg2rad(20.0), np.deg2rad(40.0), np.deg2rad(55.0),
                                 np.deg2rad(70.0), np.deg2rad(80.0))
+    swivels: tuple[float, ...] = (0.0, np.deg2rad(25.0), np.deg2rad(-25.0))
     press: float = 0.008
     standoff: float = 0.006
     pad_depth: float = 0.008
@@ -133,14 +136,20 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
                 c = geo.centre + face_off * n + hf * 0.5 * ext[2] * up
                 frames = []
                 for tilt in params.tilts:
-                    z = -np.cos(tilt) * n - np.sin(tilt) * up
-                    # the fingers are closed into one pad (2 x 2 cm for the Piper), so the press is symmetric
-                    # about the gripper whatever its roll about z; the rolls only help the arm reach it
-                    zt = np.cross(z, t)
-                    for roll in params.rolls:
-                        y = np.cos(roll) * t + np.sin(roll) * zt
-                        y = y / np.linalg.norm(y)
-                        frames.append((tilt, np.stack([np.cross(y, z), y, z], axis=1)))
+                    for swivel in params.swivels:
+                        # swivel: the approach turned about the vertical, away from the face normal
+                        h_dir = np.cos(swivel) * n + np.sin(swivel) * t
+                        z = -np.cos(tilt) * h_dir - np.sin(tilt) * up
+                        # the fingers are closed into one pad (2 x 2 cm for the Piper), so the press is
+                        # symmetric about the gripper whatever its roll about z; the rolls only help the arm
+                        # reach it
+                        zt = np.cross(z, t)
+                        zt /= np.linalg.norm(zt)
+                        tz = np.cross(zt, z)  # t made perpendicular to z (it is not when swivelled)
+                        for roll in params.rolls:
+                            y = np.cos(roll) * tz + np.sin(roll) * zt
+                            y = y / np.linalg.norm(y)
+                            frames.append((tilt, np.stack([np.cross(y, z), y, z], axis=1)))
                 for tilt, R in frames:
                     # fingertips on the face: shift along the normal so the deepest tip corner touches it
                     depth_c = [(tc @ R.T) @ -n for tc in tips]
