@@ -129,8 +129,9 @@ def fixture_grasps(robot) -> dict:
 
     seed = np.array([0.0, 1.2, -1.0, 0.0, 0.5, 0.0])
     c0 = np.asarray(SMALL_BOX["centre"])
-    # pick: tilted approach from the primary, fingers on the box's upper part, closing across the approach
-    d = c0[:2] / np.linalg.norm(c0[:2])
+    # pick: tilted approach from the primary's side (+x), fingers on the box's upper part, closing across
+    # two opposite faces (a square box pinched across its corners would turn in the fingers)
+    d = np.array([1.0, 0.0])
     R_pick = grasp_R([d[0], d[1], -1.0], [-d[1], d[0], 0.0])
     pick = make_T(R_pick, c0 + [0, 0, 0.03])
     # transfer: the object turned so the giver's approach points along +x, raised to 0.28 m
@@ -139,7 +140,7 @@ def fixture_grasps(robot) -> dict:
     target = np.array([0.28, 0.0, 0.28])
     T_move = make_T(Rz, target - Rz @ c0)
     giver_T = T_move @ pick
-    receiver = make_T(grasp_R([-1, 0, 0], [0, -1, 0]), target + [0, 0, -0.035])
+    receiver = make_T(grasp_R([-1, 0, 0], [0, -1, 0]), target + [0, 0, -0.025])
     q_pick = ik(robot, pick, seed)
     q_give = ik(robot, giver_T, seed)
     q_rec = ik(robot, inv_T(FIX_T_B1_B2) @ receiver, seed)

@@ -84,3 +84,39 @@ def test_truth_shapes_and_matching_to_estimates():
            7: box_shape(make_T(np.eye(3), [0.31, 0.0, 0.05]), [0.05, 0.04, 0.1]),
            9: box_shape(make_T(np.eye(3), [0.0, -0.4, 0.05]), [0.05, 0.04, 0.1])}  # nothing real there
     assert match_truth(est, truth) == {5: 1, 7: 0}
+
+
+def test_auto_body_is_a_box_for_a_noisy_box_and_a_hull_for_a_cylinder():
+    size = np.array([0.20, 0.12, 0.08])
+    rng = np.random.default_rng(3)
+    pts = box_surface_points([0.35, 0.0, 0.04], size, 6000, noise=0.002)
+    # a view registered a little off: 4 % of the points, 1.5 cm outwards and up (the fused cloud's layers)
+    bad = rng.choice(len(pts), 240, replace=False)
+    pts[bad] += np.array([0.015, 0.0, 0.012])
+    table = table_from_plane([0, 0, 1], 0.0)
+    sh = shape_from_points(pts, table, kind="auto")
+    assert sh.kind == "box"
+    assert np.allclose(np.sort(sh.size), np.sort(size), atol=0.007)  # not inflated by the layer
+    S = sh.surface_points_b1(spacing=0.01)
+    local = (S - sh.T_b1_o[:3, 3]) @ sh.T_b1_o[:3, :3]
+    on_face = np.isclose(np.abs(local), sh.size / 2, atol=1e-9).any(axis=1)
+    assert on_face.all() and len(S) > 2 * (20 * 12)
+    # a cylinder fills pi/4 of its box: it stays a hull (its round side is what a gripper meets)
+    ang = rng.uniform(0, 2 * np.pi, 3000)
+    cyl = np.c_[0.3 + 0.03 * np.cos(ang), 0.1 + 0.03 * np.sin(ang), rng.uniform(0, 0.1, 3000)]
+    sh = shape_from_points(cyl, table, kind="auto")
+    assert sh.kind == "hull"
+    assert len(sh.surface_points_b1()) == len(sh.vertices)
+    with pytest.raises(ValueError, match="kind must be"):
+        shape_from_points(cyl, table, kind="mesh")
+
+
+def test_trim_outer_drops_the_spread_not_the_body():
+    from bimanual_app.simulation import trim_outer
+
+    pts = box_surface_points([0.0, 0.0, 0.05], [0.1, 0.1, 0.1], 5000, noise=0.001)
+    out = np.vstack([pts, pts[:100] + [0.03, 0.0, 0.0]])  # 2 % spread 3 cm outwards
+    kept = trim_outer(out, np.array([0.0, 0.0, 1.0]))
+    assert kept[:, 0].max() < 0.055  # the spread is gone ...
+    assert np.all(np.ptp(kept, axis=0) > [0.096, 0.096, 0.046])  # ... the body is not (to the noise)
+    assert np.array_equal(trim_outer(out[:20], np.array([0.0, 0.0, 1.0])), out[:20])  # too few to trim

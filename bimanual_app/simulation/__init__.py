@@ -9,15 +9,16 @@ Public API:
     SimArm: .reset(q, width), .command(q, qd), .set_gripper(width, force), .q(), .width(), .tcp_pose(),
         .finger_forces(body), .holds(body), .touches(body)
     TablePlane, BodyShape, fit_table(points, labels), table_from_plane(normal, d, points),
-        shape_from_points(points, table, kind="hull"|"box"), box_shape(T_b1_o, size, mass, kind)
-    read_cloud(ply), table_from_segments(points, labels, extras), estimated_shapes(points, labels, table),
+        shape_from_points(points, table, kind="hull"|"box"|"auto"), box_shape(T_b1_o, size, mass, kind),
+        trim_outer(points, up), BodyShape.surface_points_b1()
+    read_cloud(ply), table_from_segments(points, labels, extras), estimated_shapes(points, labels, table, kind="auto"),
         truth_shapes(gt_objects), match_truth(est, truth), build_world(robot, T_b1_b2, table, est, truth, ...)
     HoldMonitor(world, obj): .lifted_and_held(arms, rise=0.10, hold_s=2.0, exclusive=False) -> HoldVerdict
     Recorder(width, height, fps): frames -> .save_gif(path), .keyframe(name), .save_keyframes(folder)
 """
 
 from ._bodies import (BodyShape, TablePlane, box_shape, fit_table, remove_outliers, shape_from_points,
-                      table_from_plane)
+                      table_from_plane, trim_outer)
 from ._checks import HoldMonitor, HoldSample, HoldVerdict
 from ._record import Recorder, default_camera
 from ._scene import build_world, estimated_shapes, match_truth, read_cloud, table_from_segments, truth_shapes
@@ -26,6 +27,7 @@ from ._world import GRIP_FORCE, PreviewWorld, SimArm, SimObject
 __all__ = [
     "PreviewWorld", "SimArm", "SimObject", "GRIP_FORCE",
     "TablePlane", "BodyShape", "fit_table", "table_from_plane", "shape_from_points", "box_shape", "remove_outliers",
+    "trim_outer",
     "read_cloud", "table_from_segments", "estimated_shapes", "truth_shapes", "match_truth", "build_world",
     "HoldMonitor", "HoldSample", "HoldVerdict", "Recorder", "default_camera",
 ]

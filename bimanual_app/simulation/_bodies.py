@@ -29,6 +29,7 @@ __all__ = ["TablePlane", "BodyShape", "fit_table", "table_from_plane", "shape_fr
 
 DEFAULT_DENSITY = 400.0  # kg/m^3
 MASS_RANGE = (0.02, 1.5)  # kg
+BOX_FILL = 0.85  # kind="auto": a hull filling this much of its box is simulated as the box
 OUTER_PERCENTILE = 98.0  # trim_outer: the body's faces sit at this percentile of the points, not their extreme
 
 
@@ -164,6 +165,25 @@ class BodyShape:
     vertices: np.ndarray | None = None
     faces: np.ndarray | None = None
 
+    def surface_points_b1(self, spacing: float = 0.01) -> np.ndarray:
+        """(K, 3) points on the body's surface in b1: the hull's vertices, or a grid at most ``spacing`` m
+        apart on each face of a box (a cylinder or sphere: of its bounding box)."""
+        if self.vertices is not None:
+            local = np.asarray(self.vertices, dtype=np.float64)
+        else:
+            size = np.asarray(self.size, dtype=np.float64)
+            axes = [np.linspace(-0.5, 0.5, int(np.ceil(L / spacing)) + 1) * L for L in size]
+            faces = []
+            for ax in range(3):
+                i, j = (ax + 1) % 3, (ax + 2) % 3
+                a, b = (m.ravel() for m in np.meshgrid(axes[i], axes[j]))
+                for sgn in (-0.5, 0.5):
+                    f = np.zeros((len(a), 3))
+                    f[:, ax], f[:, i], f[:, j] = sgn * size[ax], a, b
+                    faces.append(f)
+            local = np.unique(np.concatenate(faces), axis=0)
+        return local @ self.T_b1_o[:3, :3].T + self.T_b1_o[:3, 3]
+
 
 def remove_outliers(points: np.ndarray, k: int = 8, std_ratio: float = 2.5) -> np.ndarray:
     """Points (N,3) without statistical outliers (mean k-NN distance above mean + std_ratio x std)."""
@@ -213,8 +233,10 @@ def shape_from_points(points: np.ndarray, table: TablePlane | None = None, kind:
     Args:
         points: (N,3) the object's points (N >= 10).
         table: when given, the points are extruded down to the table plane first (see module notes).
-        kind: ``"hull"`` (convex hull, scipy/Qhull) or ``"box"`` (box aligned with the table normal, yaw
-            from the minimum-area rectangle of the footprint, via trimesh).
+        kind: ``"hull"`` (convex hull, scipy/Qhull), ``"box"`` (box aligned with the table normal, yaw
+            from the minimum-area rectangle of the footprint, via trimesh) or ``"auto"``: the box when the
+            hull fills at least ``BOX_FILL`` of it (a box-shaped object: a noisy hull's facets and tilted
+            top would make a squeezing gripper slip where the real planar face holds), else the hull.
         density: kg/m^3 for the mass.
         trim: drop the outermost 2% of the points in every horizontal direction and in height first
             (:func:`trim_outer`), so that noise does not inflate the body.
@@ -241,8 +263,8 @@ def shape_from_points(points: np.ndarray, table: TablePlane | None = None, kind:
         p = np.concatenate([p, table.project(p) + 0.0005 * table.normal])
     if kind == "box":
         return box_shape_from_points(p, up, density)
-    if kind != "hull":
-        raise ValueError(f"kind must be 'hull' or 'box', got {kind!r}")
+    if kind not in ("hull", "auto"):
+        raise ValueError(f"kind must be 'hull', 'box' or 'auto', got {kind!r}")
     try:
         hull = ConvexHull(p)
     except QhullError as e:
@@ -268,6 +290,10 @@ def shape_from_points(points: np.ndarray, table: TablePlane | None = None, kind:
         if np.dot(np.cross(b - a, c - a), a - ctr) < 0:
             faces[i] = f[[0, 2, 1]]
     size = local.max(0) - local.min(0)
+    if kind == "auto":
+        box = box_shape_from_points(p, up, density)
+        if hull.volume >= BOX_FILL * box.volume:  # box-like: its planar faces and flat top, not noisy facets
+            return box
     return BodyShape(T, "hull", size, float(hull.volume), _mass(float(hull.volume), density), local, faces)
 
 

@@ -53,7 +53,7 @@ def table_from_segments(points: np.ndarray, labels: np.ndarray, seg_extras: dict
 
 
 def estimated_shapes(points: np.ndarray, labels: np.ndarray, table: TablePlane | None, ids=None,
-                     kind: str = "hull", density: float | None = None) -> tuple[dict[int, BodyShape], list[str]]:
+                     kind: str = "auto", density: float | None = None) -> tuple[dict[int, BodyShape], list[str]]:
     """One collision shape per segmented object (label >= 0), from its points.
 
     Returns ``(shapes by object id, warnings)``: objects whose points cannot make a body (too few,

@@ -207,7 +207,7 @@ def _run_loaded(opts, scene, inputs, robot, staging: OutputDir, timings: dict) -
         if oid not in shapes:
             return fail("input", f"object {oid}: no collision body from its points ({'; '.join(warns)})")
         sh = shapes[oid]
-        obj_pts = sh.vertices @ sh.T_b1_o[:3, :3].T + sh.T_b1_o[:3, 3]
+        obj_pts = sh.surface_points_b1()
         robot_pts = robot_points_mask(inputs.points, inputs.labels, np.stack([np.zeros(3), inputs.T_b1_b2[:3, 3]]),
                                       table.normal, -table.d)
         if robot_pts.any():
