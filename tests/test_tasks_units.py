@@ -69,3 +69,33 @@ def test_robot_points_around_the_bases_are_not_obstacles():
     labels = np.array([-1, -1, -1, -1, 2])
     m = robot_points_mask(pts, labels, bases, np.array([0, 0, 1.0]), 0.0)
     assert m.tolist() == [True, True, False, False, False]
+
+
+def test_carried_object_may_slide_past_a_touching_neighbour_but_not_hit_others():
+    from bimanual_app.robots import load_robot
+    from bimanual_app.tasks._motion import TaskMotion
+    from tests._task_fixtures import FIX_T_B1_B2, box_surface_points, table_points
+
+    obj = box_surface_points([0.30, 0.0, 0.05], [0.04, 0.04, 0.10], 1500, visible_only=False)
+    # a neighbour touching the object's +x face (1 mm apart; kept in the map: a tiny cut radius), and a
+    # shelf overhanging it
+    wall = box_surface_points([0.321 + 0.02, 0.0, 0.05], [0.04, 0.06, 0.10], 1500, seed=2)
+    shelf = box_surface_points([0.29, 0.0, 0.16], [0.05, 0.06, 0.01], 600, seed=3)
+    points = np.vstack([table_points(), obj, wall])
+    motion = TaskMotion(load_robot("piper"), FIX_T_B1_B2, points, obj, obj, cut_radius=0.0005)
+    assert np.sum(np.abs(motion.cut_map.points[:, 0] - 0.321) < 1e-3) > 50  # the wall's face is in the map
+
+    def lift(h, n=11):
+        T = np.stack([np.eye(4)] * n)
+        T[:, 2, 3] = np.linspace(0.0, h, n)
+        return T
+
+    assert motion.object_clear(lift(0.10)) == []  # straight up along the touching neighbour: fine
+    far = TaskMotion(load_robot("piper"), FIX_T_B1_B2, np.vstack([table_points(), obj, wall + [0.02, 0, 0]]), obj,
+                     obj, cut_radius=0.0005)
+    side = lift(0.10)
+    side[:, 0, 3] = np.linspace(0.0, 0.03, len(side))  # a neighbour 2 cm away: moving 3 cm into it is not
+    assert far.object_clear(side) and "meets the scene" in far.object_clear(side)[0]
+    motion2 = TaskMotion(load_robot("piper"), FIX_T_B1_B2, np.vstack([points, shelf]), obj, obj)
+    assert motion2.object_clear(lift(0.10))  # an overhang above it stops the lift
+    assert motion2.object_clear(lift(0.04)) == []  # (below it, not)

@@ -165,6 +165,18 @@ class BodyShape:
     vertices: np.ndarray | None = None
     faces: np.ndarray | None = None
 
+    def contains(self, points_b1: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """(N,) True for points (N,3) in b1 inside the body grown by ``margin`` m (a hull by its face
+        planes, so near its edges a little more than ``margin``; a box, cylinder or sphere by its box)."""
+        P = check_shape("points", np.asarray(points_b1, dtype=np.float64), (None, 3))
+        local = (P - self.T_b1_o[:3, 3]) @ self.T_b1_o[:3, :3]
+        if self.vertices is None:
+            return np.all(np.abs(local) <= 0.5 * np.asarray(self.size) + margin, axis=1)
+        from scipy.spatial import ConvexHull
+
+        eq = ConvexHull(self.vertices).equations  # unit outward normals, n.x + d <= 0 inside
+        return np.all(local @ eq[:, :3].T + eq[:, 3] <= margin, axis=1)
+
     def surface_points_b1(self, spacing: float = 0.01) -> np.ndarray:
         """(K, 3) points on the body's surface in b1: the hull's vertices, or a grid at most ``spacing`` m
         apart on each face of a box (a cylinder or sphere: of its bounding box)."""

@@ -29,6 +29,7 @@ __all__ = ["plan_joint_grasp", "plan_handover", "LIFT", "HOLD_S"]
 
 LIFT = 0.15  # m the joint grasp lifts the object (>= 10 cm needed)
 HANDOVER_LIFT = 0.06  # m straight up after the pick, before the free carry
+HANDOVER_LIFTS = (HANDOVER_LIFT, 0.10, 0.14, 0.04)  # tried in order: higher beside a taller neighbour
 HOLD_S = 2.3  # s of the checked hold (2 s needed)
 CLOSE_S = 1.0  # s to close a gripper (force limited: it stops on the object)
 SETTLE_S = 0.4  # s still after a gripper change
@@ -325,16 +326,25 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
     if back @ up > 0.3:
         dirs.append(("back out along the approach", back))
     tr, err = None, None
-    for dist in (HANDOVER_LIFT, 0.04):
+    for dist in HANDOVER_LIFTS:
         for how, d in dirs:
-            moves = np.stack([np.eye(4)] * 7)
-            moves[:, :3, 3] = np.linspace(0.0, dist, 7)[:, None] * d
+            n_steps = max(7, int(np.ceil(dist / 0.01)) + 1)
+            moves = np.stack([np.eye(4)] * n_steps)
+            moves[:, :3, 3] = np.linspace(0.0, dist, n_steps)[:, None] * d
             try:
                 problems = motion.object_clear(moves, up=up)
                 if problems:
                     raise PlanFailure("validation", problems[0])
                 with motion.context("cut", openings={"primary": cw_g}):
                     tr = motion.cartesian({"primary": (pick.T_b1_g, moves[-1] @ pick.T_b1_g)}, q)["primary"]
+                # the carry is planned with the object attached, kept clear by the free-motion margin: an
+                # object lifted beside a taller neighbour still touches it, so lift higher
+                with motion.context("attached", openings={"primary": cw_g}, attach=attach):
+                    why = motion.valid({"primary": tr.q[-1], "secondary": q["secondary"]})
+                if why:
+                    tr = None
+                    raise PlanFailure("validation", f"lifted {dist * 100:.0f} cm ({how}), the carried object is "
+                                                    f"still too close to the scene: {why[0]}")
                 break
             except PlanFailure as e:
                 err = err or e

@@ -25,6 +25,7 @@ from ._output import OutputDir
 __all__ = ["TaskOptions", "TaskResult", "run_task"]
 
 ARMS = ("primary", "secondary")
+MAX_FALLBACK_OBJECTS = 2  # without --object: objects tried after the best-scoring one cannot be planned
 OPEN_START = 0.0  # gripper width at the start when nothing is known (closed, as the Piper rests)
 
 
@@ -199,45 +200,69 @@ def _run_loaded(opts, scene, inputs, robot, staging: OutputDir, timings: dict) -
         width_start = {a: OPEN_START for a in ARMS}
 
     try:
-        # ---- plan (try the object's candidates in order)
+        # ---- plan: the chosen object's candidates in order; without --object, the next objects (by their
+        # best score) when none of the first one's can be planned
         t = time.perf_counter()
         table = table_from_segments(inputs.points, inputs.labels, inputs.seg_extras)
-        shapes, warns = estimated_shapes(inputs.points, inputs.labels, table, ids=[oid])
-        rec["warnings"] += warns
-        if oid not in shapes:
-            return fail("input", f"object {oid}: no collision body from its points ({'; '.join(warns)})")
-        sh = shapes[oid]
-        obj_pts = sh.surface_points_b1()
         robot_pts = robot_points_mask(inputs.points, inputs.labels, np.stack([np.zeros(3), inputs.T_b1_b2[:3, 3]]),
                                       table.normal, -table.d)
         if robot_pts.any():
             rec["planning_map"] = {"robot_points_removed": int(robot_pts.sum()),
                                    "note": f"background points within {BASE_RADIUS} m of a base axis (the arms "
                                            "seen by the cameras) are not obstacles"}
-        motion = TaskMotion(robot, inputs.T_b1_b2, inputs.points[~robot_pts], obj_pts,
-                            inputs.points[inputs.labels == oid], plan_time=opts.plan_time, speed=opts.speed)
-        problems = motion.valid(q_start)
-        if problems:
-            return fail("start", "the arms' start configuration is in collision: " + "; ".join(problems[:3]))
-        plan, errors = None, []
-        for k, c in enumerate(mine[:4]):
-            try:
-                if opts.task == "joint-grasp":
-                    plan = plan_joint_grasp(motion, c, q_start, width_start, up=table.normal)
-                else:
-                    plan = plan_handover(motion, c, q_start, width_start, obj_pts, up=table.normal)
-                plan.info["candidate_rank"] = k
+        order = [oid]
+        if opts.object_id is None:
+            order += [o for o in dict.fromkeys(c.object_id for c in cands) if o != oid][:MAX_FALLBACK_OBJECTS]
+        plan, motion, obj_pts, tried = None, None, None, []
+        for n_obj, o in enumerate(order):
+            shapes, warns = estimated_shapes(inputs.points, inputs.labels, table, ids=[o])
+            rec["warnings"] += warns
+            if o not in shapes:
+                tried.append((o, PlanFailure("input", f"no collision body from its points ({'; '.join(warns)})"), 0))
+                continue
+            sh = shapes[o]
+            pts_o = sh.surface_points_b1()
+            motion_o = TaskMotion(robot, inputs.T_b1_b2, inputs.points[~robot_pts], pts_o,
+                                  inputs.points[inputs.labels == o], plan_time=opts.plan_time, speed=opts.speed,
+                                  body=sh)
+            if n_obj == 0:
+                problems = motion_o.valid(q_start)
+                if problems:
+                    return fail("start", "the arms' start configuration is in collision: " + "; ".join(problems[:3]))
+            errors = []
+            for k, c in enumerate([c for c in cands if c.object_id == o][:4]):
+                try:
+                    if opts.task == "joint-grasp":
+                        plan = plan_joint_grasp(motion_o, c, q_start, width_start, up=table.normal)
+                    else:
+                        plan = plan_handover(motion_o, c, q_start, width_start, pts_o, up=table.normal)
+                    plan.info["candidate_rank"] = k
+                    break
+                except PlanFailure as e:
+                    errors.append(e)
+                    _log(opts, f"candidate {k + 1} of object {o}: {e}")
+            motion, obj_pts = motion_o, pts_o
+            if plan is not None:
+                if o != oid:
+                    first = tried[0][1]
+                    why = (f"object {o}, the next best: the best-scoring object {oid} could not be planned "
+                           f"({first.message})")
+                    oid = o
+                    res.object_id, res.object_reason = oid, why
+                    rec.update(object=oid, object_reason=why)
+                    _log(opts, why)
                 break
-            except PlanFailure as e:
-                errors.append(e)
-                _log(opts, f"candidate {k + 1} of object {oid}: {e}")
+            tried.append((o, errors[0], len(errors)) if errors else (o, PlanFailure("grasp", "no candidate"), 0))
         timings["plan"] = time.perf_counter() - t
         rec["planning"] = {k: (round(v, 3) if isinstance(v, float) else v) for k, v in motion.stats.items()}
+        if tried:
+            rec["objects_tried"] = [{"object": o, "reason": e.message, "candidates": n} for o, e, n in tried]
         if plan is None:
-            e = errors[0]
+            o, e, n_c = tried[0]
             stage = {"reach": "reach", "cartesian": "reach", "plan": "plan", "validation": "plan"}.get(e.stage, e.stage)
-            more = f" ({len(errors)} grasp candidates tried)" if len(errors) > 1 else ""
-            return fail(stage, f"no valid plan for object {oid}{more}: {e.message}")
+            more = f" ({n_c} grasp candidates tried)" if n_c > 1 else ""
+            others = f"; {len(tried) - 1} other object(s) could not be planned either" if len(tried) > 1 else ""
+            return fail(stage, f"no valid plan for object {o}{more}: {e.message}{others}")
         timeline = plan.timeline()
         try:
             motion.validate_timeline(timeline, plan.opening_spans())  # the samples the preview and hardware get
