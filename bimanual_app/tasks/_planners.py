@@ -25,7 +25,7 @@ from ._grasps import GraspSpec, HandoverChoice, JointChoice
 from ._motion import PlanFailure, TaskMotion, line_poses, translate_along
 from ._plan import Phase, TaskPlan
 
-__all__ = ["plan_joint_grasp", "plan_handover", "LIFT", "HOLD_S"]
+__all__ = ["plan_joint_grasp", "plan_handover", "object_lifts", "LIFT", "HOLD_S"]
 
 LIFT = 0.15  # m the joint grasp lifts the object (>= 10 cm needed)
 HANDOVER_LIFT = 0.06  # m straight up after the pick, before the free carry
@@ -69,12 +69,14 @@ def _pre(motion: TaskMotion, g: GraspSpec) -> np.ndarray:
     return translate_along(g.T_b1_g, g.T_b1_g[:3, 2], -g.pre_dist)
 
 
-def object_lift(motion: TaskMotion, up: np.ndarray, lift: float) -> tuple[np.ndarray, str]:
-    """The object's lift as rigid motions (K,4,4) whose swept object stays clear of the scene map.
+def object_lifts(motion: TaskMotion, up: np.ndarray, lift: float) -> list[tuple[np.ndarray, str]]:
+    """The object's possible lifts, in order of preference: ``(rigid motions (K,4,4), how)`` whose swept
+    object stays clear of the scene map (the arms' reach is the caller's to check).
 
     Tried in order: straight up; up while moving 3 cm, then 6 cm, horizontally away from the nearest
-    obstacle around the object (a neighbour it touches), reached over the first half of the lift.
-    Raises PlanFailure when none is clear.
+    obstacle around the object (a neighbour it touches); up while moving 3 cm, then 6 cm, towards the
+    line between the two bases (nearer both arms); each horizontal move reached over the first half of
+    the lift. Raises PlanFailure when none is clear.
     """
     from scipy.spatial import cKDTree
 
@@ -91,17 +93,32 @@ def object_lift(motion: TaskMotion, up: np.ndarray, lift: float) -> tuple[np.nda
         if np.linalg.norm(d) > 1e-6:
             d /= np.linalg.norm(d)
             cand += [(0.03 * d, "up and 3 cm away from its neighbour"), (0.06 * d, "up and 6 cm away from its neighbour")]
+    # towards the line between the two bases: nearer both arms, where an arm at the top of its reach
+    # can follow the lift
+    b2 = motion.setup.T_b1_b("secondary")[:3, 3]
+    line = b2 - (b2 @ up) * up
+    if np.linalg.norm(line) > 1e-6:
+        u = line / np.linalg.norm(line)
+        c = centre - (centre @ up) * up
+        off = c - (c @ u) * u  # from the line to the object, horizontally
+        dist = float(np.linalg.norm(off))
+        for k in (0.03, 0.06):
+            if dist > 0.01:
+                step = -off / dist * min(k, dist)
+                cand.append((step, f"up and {np.linalg.norm(step) * 100:.0f} cm towards the line between the bases"))
     n = max(2, int(np.ceil(lift / 0.01)) + 1)
     s = np.linspace(0.0, 1.0, n)
-    first = None
+    first, out = None, []
     for shift, how in cand:
         T = np.stack([np.eye(4)] * n)
         T[:, :3, 3] = (s * lift)[:, None] * up + np.minimum(2 * s, 1.0)[:, None] * shift
         problems = motion.object_clear(T, up=up)
         if not problems:
-            return T, how
-        first = first or problems[0]
-    raise PlanFailure("validation", first)
+            out.append((T, how))
+        first = first or (problems[0] if problems else None)
+    if not out:
+        raise PlanFailure("validation", first)
+    return out
 
 
 def _face_gap(motion: TaskMotion, g: GraspSpec, lateral: float = 0.03, cap: float = 0.02) -> float:
@@ -223,15 +240,22 @@ def _joint_grasp(motion, choice, q_start, width_start, lift, up, at) -> TaskPlan
     # 4. lift: the object's motion, both grippers follow it
     q, _ = plan.end_state()
     tr, err = None, None
-    for h in (lift, 0.8 * lift, max(0.72 * lift, 0.108)):  # near the top of the reach, lift less (10 cm needed)
+    for h in (lift, 0.85 * lift, max(0.74 * lift, 0.11)):  # near the top of the reach, lift less (10 cm needed)
         try:
-            T_moves, how = object_lift(motion, up, h)
-            with motion.context("cut", openings=opening_hold):
-                tr = motion.cartesian({a: T_moves @ S[a] for a in arms}, q)
-            lift = h
-            break
+            lifts = object_lifts(motion, up, h)
         except PlanFailure as e:
             err = err or e
+            continue
+        for T_moves, how in lifts:  # the first one both arms can follow
+            try:
+                with motion.context("cut", openings=opening_hold):
+                    tr = motion.cartesian({a: T_moves @ S[a] for a in arms}, q)
+                break
+            except PlanFailure as e:
+                err = err or e
+        if tr is not None:
+            lift = h
+            break
     if tr is None:
         raise err
     plan.add(Phase("lift", {a: _jt(tr[a].times, tr[a].q, w_hold[a]) for a in arms},
