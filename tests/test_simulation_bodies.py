@@ -120,3 +120,30 @@ def test_trim_outer_drops_the_spread_not_the_body():
     assert kept[:, 0].max() < 0.055  # the spread is gone ...
     assert np.all(np.ptp(kept, axis=0) > [0.096, 0.096, 0.046])  # ... the body is not (to the noise)
     assert np.array_equal(trim_outer(out[:20], np.array([0.0, 0.0, 1.0])), out[:20])  # too few to trim
+
+
+def test_box_from_faces_ignores_a_neighbour_bleeding_into_the_segment():
+    from bimanual_app.simulation import box_from_faces
+
+    size = np.array([0.30, 0.18, 0.09])
+    R = so3_exp(np.array([0, 0, 0.6]))
+    box = box_surface_points([0, 0, 0], size, 6000, seed=4) @ R.T + [0.35, 0.0, 0.045]
+    # 6 % of the segment is a cylinder standing against the box's long face (under-segmentation)
+    rng = np.random.default_rng(5)
+    ang = rng.uniform(0, 2 * np.pi, 400)
+    c = np.array([0.35, 0.0, 0.0]) + R[:, 1] * (0.09 + 0.03)
+    cyl = np.c_[c[0] + 0.03 * np.cos(ang), c[1] + 0.03 * np.sin(ang), rng.uniform(0, 0.1, 400)]
+    pts = np.vstack([box, cyl])
+    table = table_from_plane([0, 0, 1], 0.0)
+    est, boxness = box_from_faces(pts, np.array([0.0, 0.0, 1.0]), table)
+    assert boxness > 0.8
+    assert np.allclose(np.sort(est.size), np.sort(size), atol=0.006)  # not widened by the cylinder
+    yaw_err = np.degrees(np.arccos(min(1.0, abs(est.T_b1_o[:3, int(np.argmax(est.size))] @ R[:, 0]))))
+    assert yaw_err < 2.0
+    # the enclosing box of the same points is pulled off by the cylinder
+    from bimanual_app.simulation._bodies import box_shape_from_points
+
+    enclosing = box_shape_from_points(pts, np.array([0.0, 0.0, 1.0]))
+    assert np.max(np.abs(np.sort(enclosing.size) - np.sort(size))) > 0.02
+    _, b_cyl = box_from_faces(cyl, np.array([0.0, 0.0, 1.0]), table)
+    assert b_cyl < 0.6  # a cylinder is not box-like

@@ -25,11 +25,12 @@ import numpy as np
 from bimanual_app.transforms import check_shape, make_T
 
 __all__ = ["TablePlane", "BodyShape", "fit_table", "table_from_plane", "shape_from_points", "box_shape",
-           "remove_outliers", "trim_outer", "DEFAULT_DENSITY", "MASS_RANGE"]
+           "remove_outliers", "trim_outer", "box_from_faces", "DEFAULT_DENSITY", "MASS_RANGE"]
 
 DEFAULT_DENSITY = 400.0  # kg/m^3
 MASS_RANGE = (0.02, 1.5)  # kg
-BOX_FILL = 0.85  # kind="auto": a hull filling this much of its box is simulated as the box
+BOXNESS = 0.7  # kind="auto": objects whose side normals are this box-like are simulated as their box ...
+BOX_FILL = 0.85  # ... or, when the normals are too noisy to tell, whose hull fills this much of its box
 OUTER_PERCENTILE = 98.0  # trim_outer: the body's faces sit at this percentile of the points, not their extreme
 
 
@@ -245,10 +246,12 @@ def shape_from_points(points: np.ndarray, table: TablePlane | None = None, kind:
     Args:
         points: (N,3) the object's points (N >= 10).
         table: when given, the points are extruded down to the table plane first (see module notes).
-        kind: ``"hull"`` (convex hull, scipy/Qhull), ``"box"`` (box aligned with the table normal, yaw
-            from the minimum-area rectangle of the footprint, via trimesh) or ``"auto"``: the box when the
-            hull fills at least ``BOX_FILL`` of it (a box-shaped object: a noisy hull's facets and tilted
-            top would make a squeezing gripper slip where the real planar face holds), else the hull.
+        kind: ``"hull"`` (convex hull, scipy/Qhull), ``"box"`` (box aligned with the table normal, fitted
+            to the object's faces, :func:`box_from_faces`; else the minimum-area rectangle of the footprint,
+            via trimesh) or ``"auto"``: that box when the object is box-like (``BOXNESS``; or, when the
+            normals are too noisy to tell, the enclosing box when the hull fills ``BOX_FILL`` of it): a
+            noisy hull's facets and tilted top make a squeezing gripper slip where the real planar face
+            holds. Otherwise the hull.
         density: kg/m^3 for the mass.
         trim: drop the outermost 2% of the points in every horizontal direction and in height first
             (:func:`trim_outer`), so that noise does not inflate the body.
@@ -267,6 +270,7 @@ def shape_from_points(points: np.ndarray, table: TablePlane | None = None, kind:
     up = np.array([0.0, 0.0, 1.0]) if table is None else table.normal
     if trim:
         p = trim_outer(p, up)
+    p_seen = p
     if table is not None:
         h = table.height(p)
         p = p[h > -0.01]  # points below the table top are noise
@@ -274,7 +278,8 @@ def shape_from_points(points: np.ndarray, table: TablePlane | None = None, kind:
             raise ValueError("the object's points lie below the table plane")
         p = np.concatenate([p, table.project(p) + 0.0005 * table.normal])
     if kind == "box":
-        return box_shape_from_points(p, up, density)
+        box, _ = box_from_faces(p_seen, up, table, density=density)
+        return box if box is not None else box_shape_from_points(p, up, density)
     if kind not in ("hull", "auto"):
         raise ValueError(f"kind must be 'hull', 'box' or 'auto', got {kind!r}")
     try:
@@ -302,9 +307,12 @@ def shape_from_points(points: np.ndarray, table: TablePlane | None = None, kind:
         if np.dot(np.cross(b - a, c - a), a - ctr) < 0:
             faces[i] = f[[0, 2, 1]]
     size = local.max(0) - local.min(0)
-    if kind == "auto":
-        box = box_shape_from_points(p, up, density)
-        if hull.volume >= BOX_FILL * box.volume:  # box-like: its planar faces and flat top, not noisy facets
+    if kind == "auto":  # box-like objects as their box: planar faces and a flat top, not noisy facets
+        box, boxness = box_from_faces(p_seen, up, table, density=density)
+        if box is not None and boxness >= BOXNESS:  # clean faces: the box fitted to them
+            return box
+        box = box_shape_from_points(p, up, density)  # noisy normals: the enclosing box, if the hull fills it
+        if hull.volume >= BOX_FILL * box.volume:
             return box
     return BodyShape(T, "hull", size, float(hull.volume), _mass(float(hull.volume), density), local, faces)
 
@@ -318,6 +326,79 @@ def _hull_centroid(points: np.ndarray, hull) -> np.ndarray:
         return o
     cent = (tri.sum(axis=1) + o) / 4.0
     return (vol[:, None] * cent).sum(0) / vol.sum()
+
+
+def box_from_faces(points: np.ndarray, up: np.ndarray, table: TablePlane | None = None, k: int = 16,
+                   density: float = DEFAULT_DENSITY) -> tuple[BodyShape | None, float]:
+    """A box (z along ``up``) fitted to the object's vertical *faces*, and how box-like the object is.
+
+    The enclosing box of a segment is pulled off by any points that are not the object's (a touching
+    neighbour's surface that bled into the segment, a view registered a little off): a few percent of
+    points on one side turn and widen it by centimetres. Here the yaw is the dominant direction (mod 90
+    degrees) of the vertical surfaces' normals (local plane fits over ``k`` neighbours), and each face sits
+    at the median of the points whose normal points that way -- a bleed cluster with normals of its own
+    moves neither. A side no camera saw falls back to the 98th percentile of the points along it; the top
+    is the 98th percentile of height, the bottom the table (or the lowest point).
+
+    Args:
+        points: (N,3) the object's points in b1 (not extruded).
+    Returns:
+        ``(box or None, boxness)``: boxness in [0, 1] is the share of vertical-surface points whose normal
+        lies within 15 degrees of one of the four face directions (a box: near 1; a cylinder: about 1/3).
+        None when there are too few vertical-surface points to tell.
+    """
+    from scipy.spatial import cKDTree
+
+    P = check_shape("points", np.asarray(points, dtype=np.float64), (None, 3))
+    up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+    if len(P) < 3 * k:
+        return None, 0.0
+    _, nb = cKDTree(P).query(P, k=k)
+    Q = P[nb] - P[nb].mean(axis=1, keepdims=True)
+    normals = np.linalg.eigh(np.einsum("nki,nkj->nij", Q, Q))[1][:, :, 0]  # smallest eigenvector per point
+    R0 = _frame_from_normal(up)
+    loc = P @ R0
+    nl = normals @ R0
+    centre_xy = np.median(loc[:, :2], axis=0)
+    side = np.abs(nl[:, 2]) < 0.3  # on a vertical surface
+    if side.sum() < 20:
+        return None, 0.0
+    # outward normals, horizontal angle modulo 90 degrees
+    nh = nl[side, :2] / np.linalg.norm(nl[side, :2], axis=1, keepdims=True)
+    nh *= np.where(np.einsum("ij,ij->i", nh, loc[side, :2] - centre_xy) < 0, -1.0, 1.0)[:, None]
+    ang = np.mod(np.arctan2(nh[:, 1], nh[:, 0]), np.pi / 2)
+    bins = np.deg2rad(np.arange(0.0, 90.0, 1.0))
+    dist = np.abs(np.angle(np.exp(4j * (ang[:, None] - bins[None]))) / 4)  # circular, period 90 deg
+    votes = (dist < np.deg2rad(5.0)).sum(axis=0)
+    yaw = float(bins[int(np.argmax(votes))])
+    boxness = float(np.mean(np.abs(np.angle(np.exp(4j * (ang - yaw))) / 4) < np.deg2rad(15.0)))
+    axes = np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]])  # local x, y of the box
+    lo, hi = np.zeros(2), np.zeros(2)
+    for i, a in enumerate(axes):
+        proj_all = loc[:, :2] @ a
+        proj = loc[side, :2] @ a
+        for sgn in (1.0, -1.0):
+            face = (nh @ (sgn * a)) > np.cos(np.deg2rad(25.0))
+            if face.sum() >= max(20, 0.05 * len(nh)):  # a face, not a few stray normals
+                pos = float(np.median(proj[face]))
+            else:  # a face no camera saw: the points' extent that way
+                pos = float(np.percentile(proj_all, 98.0 if sgn > 0 else 2.0))
+            if sgn > 0:
+                hi[i] = pos
+            else:
+                lo[i] = pos
+    if np.any(hi - lo <= 0.005):
+        return None, boxness
+    h = loc[:, 2]  # height along up (R0's z)
+    top = float(np.percentile(h, 98.0))
+    bottom = float(-table.d) if table is not None else float(h.min())  # the plane n.x + d = 0, n = up
+    c2 = 0.5 * (lo + hi) @ axes  # in the local frame's xy
+    Rz = np.array([[axes[0, 0], axes[1, 0], 0.0], [axes[0, 1], axes[1, 1], 0.0], [0.0, 0.0, 1.0]])
+    R = R0 @ Rz
+    centre = R0 @ np.array([c2[0], c2[1], 0.5 * (top + bottom)])
+    size = np.maximum(np.array([hi[0] - lo[0], hi[1] - lo[1], top - bottom]), 0.005)
+    vol = float(np.prod(size))
+    return BodyShape(make_T(R, centre), "box", size, vol, _mass(vol, density)), boxness
 
 
 def box_shape_from_points(points: np.ndarray, up: np.ndarray, density: float = DEFAULT_DENSITY) -> BodyShape:
