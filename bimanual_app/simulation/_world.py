@@ -22,6 +22,7 @@ from ._bodies import BodyShape, TablePlane
 __all__ = ["SimArm", "SimObject", "PreviewWorld", "GRIP_FORCE", "FINGER_FRICTION", "OBJECT_FRICTION"]
 
 GRIP_FORCE = 20.0  # N per finger while closing (the Piper gripper's rated grip is about 40 N in total)
+COUPLING_FORCE = 200.0  # N: the follower finger holds the mirror position of the driven one (see couple_fingers)
 FINGER_FRICTION = 1.0  # rubber pads; PyBullet multiplies the two bodies' coefficients
 OBJECT_FRICTION = 0.9
 TABLE_FRICTION = 0.6
@@ -83,6 +84,9 @@ class SimArm:
         self.q_cmd = robot.neutral()
         self.width_cmd = 0.0
         self.grip_force = GRIP_FORCE
+        # the second finger's position as a multiple of the first's (-1: the two slide opposite ways)
+        signs = robot.finger_q(1.0)
+        self._mirror = float(signs[1] / signs[0]) if len(signs) == 2 and signs[0] != 0 and signs[1] != 0 else None
 
     # ------------------------------------------------------------------ state
     def reset(self, q: np.ndarray, width: float = 0.0) -> None:
@@ -130,10 +134,28 @@ class SimArm:
         """
         self.width_cmd = float(width)
         f = self.grip_force if force is None else float(force)
-        for j, v in zip(self.finger_joints, self.robot.finger_q(max(width, 0.0))):
+        drive = self.finger_joints[:1] if self._mirror is not None else self.finger_joints  # see couple_fingers
+        for j, v in zip(drive, self.robot.finger_q(max(width, 0.0))):
             self.p.setJointMotorControl2(self.body, j, self.p.POSITION_CONTROL, targetPosition=float(v),
                                          force=f, maxVelocity=0.08, positionGain=0.2, velocityGain=1.0,
                                          physicsClientId=self.cid)
+        self.couple_fingers()
+
+    def couple_fingers(self) -> None:
+        """Keep the second finger at the mirror image of the first (called before every physics step).
+
+        The Piper's fingers are driven by one motor through a rack and pinion: they always move together,
+        so closing on an object pushes it to the middle of the gripper. Two independently driven fingers
+        in the simulation would each stop where they first touch and leave an object off-centre (1.6 cm
+        was seen), which a hand-over then misses. The first finger carries the force-limited drive; the
+        second follows its mirror position (PyBullet's gear constraint couples rotations, not slides).
+        """
+        if len(self.finger_joints) != 2 or self._mirror is None:
+            return
+        lead = self.p.getJointState(self.body, self.finger_joints[0], physicsClientId=self.cid)[0]
+        self.p.setJointMotorControl2(self.body, self.finger_joints[1], self.p.POSITION_CONTROL,
+                                     targetPosition=float(self._mirror * lead), force=COUPLING_FORCE,
+                                     positionGain=0.5, velocityGain=1.0, physicsClientId=self.cid)
 
     # ------------------------------------------------------------------ contacts
     def finger_forces(self, body: int) -> tuple[float, float]:
@@ -312,6 +334,8 @@ class PreviewWorld:
                 if self._wall > now:
                     time.sleep(self._wall - now)
                 self._wall = max(self._wall, now) + self.dt
+            for arm in self.arms.values():
+                arm.couple_fingers()
             self.p.stepSimulation(physicsClientId=self.cid)
             self.time += self.dt
             for fn in list(self._listeners):
