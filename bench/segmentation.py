@@ -10,7 +10,7 @@ placed in contact with a neighbour), cached under ``--work``. Clouds:
 * emulator: the scene's ``reconstruction.npz`` point maps (the foundation-model emulator at "paper" noise:
   1.5 deg / 10 mm per camera pose, 0.5 % depth noise, flying pixels at depth edges) mapped into b1 with the
   true ``T_w_b1`` and scale from ``ground_truth.yaml`` (``x_b1 = inv(T_w_b1) (scale x_w)``), confidence
-  filtered like ``bijcr calibrate``; its labels come from the masks at each point-map pixel (robots and
+  and self filtered like ``bijcr calibrate`` (each wrist camera's gripper, points other views see through); its labels come from the masks at each point-map pixel (robots and
   everything else unlabelled = -1).
 
 Each cloud is segmented without and with the scene's masks (``MaskViews.from_scene`` with the true
@@ -94,7 +94,16 @@ class Scene:
     def _emulator_cloud(self):
         from PIL import Image
 
+        from calibration._fusion import free_space_outliers
+        from calibration._selfmask import wrist_rig_pixels
+
         rec = self.scene.reconstruction
+        # the self filters of `bijcr calibrate` (calibration.scene_cloud): each wrist camera's own gripper,
+        # and points the other views see through
+        drop = free_space_outliers(rec.pts3d, rec.T_w_c)
+        for arm in self.scene.arms:
+            mine = np.flatnonzero(np.asarray(rec.arm) == arm.index)
+            drop[mine] |= wrist_rig_pixels(rec.pts3d[mine], rec.T_w_c[mine])[None]
         P, C, L = [], [], []
         for arm in self.scene.arms:
             _, rows = rec.rows_for(arm.index, arm.images)
@@ -106,7 +115,7 @@ class Scene:
                 uu = np.minimum(((np.arange(W) + 0.5) * mask.shape[1] / W).astype(int), mask.shape[1] - 1)
                 ids = mask[vv[:, None], uu[None, :]].astype(np.int32) - 1
                 conf = rec.conf[j]
-                ok = (conf > 0.2 * np.median(conf[conf > 0])) & np.all(np.isfinite(rec.pts3d[j]), axis=-1)
+                ok = (conf > 0.2 * np.median(conf[conf > 0])) & np.all(np.isfinite(rec.pts3d[j]), axis=-1) & ~drop[j]
                 p = rec.pts3d[j][ok].astype(np.float64) * self.scale
                 P.append(p @ self.T_b1_w[:3, :3].T + self.T_b1_w[:3, 3])
                 C.append(rec.colors[j][ok])

@@ -38,12 +38,19 @@ class StagePaths:
     segments: Path
     grasps: Path
 
-    def argv(self, scene: Path) -> dict[str, list[str]]:
-        """The ``bijcr`` argument lists that produce each output."""
+    def argv(self, scene: Path, masks: bool | None = None) -> dict[str, list[str]]:
+        """The ``bijcr`` argument lists that produce each output.
+
+        ``masks``: segment with the scene's per-image masks (``--masks``); None: when the scene has a
+        ``masks`` folder, as ``bijcr run`` does.
+        """
         cal_dir, seg_dir, grasp_dir = self.calibration.parent, self.segments.parent, self.grasps.parent
+        scene = Path(scene)
+        if masks is None:
+            masks = any((scene / arm / "masks").is_dir() for arm in ("primary", "secondary"))
         return {
             "calibrate": ["calibrate", str(scene), "--out", str(cal_dir)],
-            "segment": ["segment", str(self.cloud), "--out", str(seg_dir)],
+            "segment": ["segment", str(self.cloud), "--out", str(seg_dir)] + (["--masks", str(scene)] if masks else []),
             "grasp": ["grasp", str(self.cloud), "--segments", str(self.segments), "--calibration",
                       str(self.calibration), "--out", str(grasp_dir)],
         }
@@ -56,16 +63,17 @@ def stage_paths(work: str | Path) -> StagePaths:
 
 
 def ensure_stages(scene_path: Path, paths: StagePaths, timings: dict[str, float], quiet: bool = False,
-                  scene=None) -> list[str]:
+                  scene=None, masks: bool | None = None) -> list[str]:
     """Run ``calibrate`` / ``segment`` / ``grasp`` in-process for each missing output; returns the stages run.
 
-    ``timings`` receives the seconds of each stage run now (``calibrate``, ``segment``, ``grasp``). A
+    ``timings`` receives the seconds of each stage run now (``calibrate``, ``segment``, ``grasp``);
+    ``masks`` as in :meth:`StagePaths.argv`. A
     calibration present but made for another scene is refused *before* anything downstream runs on it.
     Raises InputError naming the stage, its output and its messages when a stage fails.
     """
     from bimanual_app.cli import main as cli_main
 
-    argv = paths.argv(scene_path)
+    argv = paths.argv(scene_path, masks)
     steps = [("calibrate", [paths.calibration, paths.cloud]), ("segment", [paths.segments]),
              ("grasp", [paths.grasps])]
     ran = []

@@ -48,6 +48,7 @@ class TaskOptions:
     frame_size: tuple = (320, 240)
     speed: float = 0.5
     compare_truth: bool = False  # also run the same plan in the ground-truth world (task.json "preview_truth")
+    masks: bool | None = None  # segment with the scene's masks when it runs the stage; None: when it has them
 
 
 @dataclass
@@ -114,7 +115,7 @@ def run_task(opts: TaskOptions) -> TaskResult:
     staging = OutputDir(out)  # refuses a folder of foreign files before any work
     try:
         try:
-            ensure_stages(scene.path, paths, timings, quiet=opts.quiet, scene=scene)
+            ensure_stages(scene.path, paths, timings, quiet=opts.quiet, scene=scene, masks=opts.masks)
         except InputError as e:
             e.timings = timings  # what ran before the failure (the bench reports stage times)
             raise
