@@ -223,7 +223,14 @@ def draw_plan(path: str | Path, plan: GraspPlan, points: np.ndarray, labels: np.
                 ax.annotate(name, (T[a, 3], T[b, 3]), textcoords="offset points", xytext=(5, 5))
         ax.set_title(title)
         ax.set_aspect("equal")
-        ax.autoscale_view()
+        # the region that matters: the bases, the objects and the grasps drawn, not far background points
+        focus = [np.zeros(3)] + ([plan.T_b1_b2[:3, 3]] if plan.T_b1_b2 is not None else [])
+        focus += [op.geometry.centre for op in plan.objects if op.geometry is not None]
+        focus += [segs.reshape(-1, 3) for segs, _, _ in drawn]
+        F = np.vstack([np.atleast_2d(f) for f in focus])
+        lo, hi = F.min(axis=0) - 0.15, F.max(axis=0) + 0.15
+        ax.set_xlim(lo[a], hi[a])
+        ax.set_ylim(lo[b], hi[b])
         ax.set_xlabel("xyz"[a] + " (m)")
         ax.set_ylabel("xyz"[b] + " (m)")
     handles, labs = axes[0].get_legend_handles_labels()

@@ -32,6 +32,12 @@ def test_run_calibrates_segments_and_reports_then_reuses_cache(scene, tmp_path, 
     assert len(imgs) >= 3  # capture preview, calibration figure, segments figure
     assert all(base64.b64decode(b)[:8] == b"\x89PNG\r\n\x1a\n" for b in imgs)
     assert "T_e1_c1" in page and "uncertainty" in page and "scale" in page
+    # the segments table reads segments.json: every object's box has numbers
+    seg = json.loads((out / "segments" / "segments.json").read_text())
+    for o in seg["objects"]:
+        ext = " x ".join(f"{100 * x:.1f}" for x in o["obb"]["extents"])
+        assert f"<td>{o['id']}</td><td>{o['points']}</td>" in page and ext in page
+    assert "nan" not in page.split("Metric scene")[-1].split("</table>")[0]
     # second run: nothing changed, both stages reused
     assert bijcr(argv) == 0
     err = capsys.readouterr().err
@@ -96,3 +102,17 @@ def test_report_renders_in_headless_chromium(scene, tmp_path):
     subprocess.run([chromium, *flags, "--window-size=1200,2000", f"--screenshot={shot}", (out / "report.html").as_uri()],
                    capture_output=True, timeout=120)
     assert shot.exists() and shot.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_report_grasps_table_reads_grasps_json(tmp_path):
+    from bimanual_app.app.report import _grasps_section
+
+    g = {"objects": [
+        {"id": 0, "mode": "joint", "grasps": [], "joint_grasps": [{"score": 0.8}, {"score": 0.6}], "handover": None,
+         "problems": ["x.npz [object 0]: object is 113 mm across -> fix: lift it with both arms"]},
+        {"id": 1, "mode": "single", "grasps": [{"score": 0.5}, {"score": 0.9}], "joint_grasps": [],
+         "handover": {"score": 0.7, "T_move": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}}]}
+    (tmp_path / "grasps.json").write_text(json.dumps(g))
+    html = _grasps_section(tmp_path)
+    assert "<td>0</td><td>joint</td><td>none</td><td>2 (0.80)</td><td>no</td><td>object is 113 mm across</td>" in html
+    assert "<td>1</td><td>single</td><td>2 (0.90)</td><td>none</td><td>yes (0.70)</td>" in html

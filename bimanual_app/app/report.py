@@ -108,7 +108,7 @@ def _segments_section(d: Path) -> str:
             out.append("<table><tr><th>object</th><th>points</th><th>centroid in b1 (m)</th><th>box extents (cm)</th></tr>")
             for o in objs:
                 c = o.get("centroid", [float("nan")] * 3)
-                e = o.get("extent", o.get("extents", [float("nan")] * 3))
+                e = (o.get("obb") or {}).get("extents") or [float("nan")] * 3  # segments.json: obb.extents
                 out.append(f"<tr><td>{o.get('id')}</td><td>{o.get('points', o.get('n_points', ''))}</td>"
                            f"<td>{', '.join(_fmt(x, '', 3) for x in c)}</td><td>{' x '.join(_fmt(100 * x, '', 1) for x in e)}</td></tr>")
             out.append("</table>")
@@ -121,12 +121,25 @@ def _grasps_section(d: Path) -> str:
     out = []
     if g is not None:
         objs = g.get("objects", [])
-        out.append("<table><tr><th>object</th><th>single grasps</th><th>best score</th><th>joint pairs</th><th>handover pairs</th></tr>")
-        for o in objs:
-            gs = o.get("grasps", [])
-            best = max((x.get("score", 0) for x in gs), default=float("nan"))
-            out.append(f"<tr><td>{o.get('id')}</td><td>{len(gs)}</td><td>{_fmt(best, '', 2)}</td>"
-                       f"<td>{len(o.get('joint', o.get('joint_pairs', [])) or [])}</td><td>{len(o.get('handover', o.get('handover_pairs', [])) or [])}</td></tr>")
+        out.append("<table><tr><th>object</th><th>mode</th><th>single-arm grasps (best score)</th>"
+                   "<th>two-arm pairs (best score)</th><th>hand-over (score)</th><th>note</th></tr>")
+
+        def count(items) -> str:
+            items = [x for x in (items or []) if isinstance(x, dict)]
+            if not items:
+                return "none"
+            return f"{len(items)} ({_fmt(max(float(x.get('score', 0.0)) for x in items), '', 2)})"
+
+        for o in objs:  # grasps.json (docs/grasping.md): grasps, joint_grasps, handover (a dict or null)
+            h = o.get("handover")
+            ho = f"yes ({_fmt(float(h.get('score', 0.0)), '', 2)})" if isinstance(h, dict) and h else "no"
+            notes = [str(n) for n in (o.get("notes") or [])]
+            for p in o.get("problems") or []:  # "FILE [object K]: message -> fix: ..." -> the message
+                p = str(p.get("message", p)) if isinstance(p, dict) else str(p)
+                notes.append(p.split("]: ", 1)[-1].split(" -> fix", 1)[0])
+            out.append(f"<tr><td>{o.get('id')}</td><td>{html.escape(str(o.get('mode', '')))}</td>"
+                       f"<td>{count(o.get('grasps'))}</td><td>{count(o.get('joint_grasps'))}</td><td>{ho}</td>"
+                       f"<td>{html.escape(notes[0]) if notes else ''}</td></tr>")
         out.append("</table>")
     out.append(_embed(d / "grasps.png", "Best grasps drawn on the cloud"))
     return "\n".join(out) or "<p>No grasps were produced.</p>"
