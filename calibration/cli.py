@@ -80,15 +80,21 @@ def summary(result, scene) -> list[str]:
     return lines
 
 
-def evaluation_lines(result, gt) -> list[str]:
+def evaluation_lines(result, gt, model: str | None = "synthetic") -> list[str]:
+    """The calibration against ground_truth.yaml. Its ``scale`` is that of the synthetic reconstruction's
+    frame; after ``bijcr reconstruct --force`` (``model`` is then COLMAP's or another's) the frame and its
+    scale are new, so the scale is not compared."""
     from ._evaluate import calibration_errors
 
     e = calibration_errors(result.T_e1_c1, result.T_e2_c2, result.scale, result.T_b1_b2, gt)
     out = ["EVALUATION against ground_truth.yaml (not used by the solver):"]
     for key in ("T_e1_c1", "T_e2_c2", "T_b1_b2"):
         out.append(f"  {key}: {e[key][0]:.3f} deg, {e[key][1]:.2f} mm")
-    if e["scale_percent"] is not None:
+    if e["scale_percent"] is not None and model == "synthetic":
         out.append(f"  scale: {e['scale_percent']:.3f}%")
+    elif e["scale_percent"] is not None:
+        out.append(f"  scale: not compared (ground_truth.yaml's scale is the synthetic reconstruction's; "
+                   f"this one is {model!r})")
     return out
 
 
@@ -124,7 +130,8 @@ def run(args: argparse.Namespace) -> int:
         for w in result.warnings:
             print(f"warning: {w}")
         if scene.ground_truth is not None:
-            print("\n".join(evaluation_lines(result, scene.ground_truth)))
+            model = scene.reconstruction.model if scene.reconstruction is not None else None
+            print("\n".join(evaluation_lines(result, scene.ground_truth, model)))
         print("wrote " + ", ".join(sorted(files)) + f" in {args.out}")
     else:
         print(args.out)

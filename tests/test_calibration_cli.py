@@ -194,3 +194,17 @@ def test_writes_are_atomic(tiny_scene, tmp_path, monkeypatch):
     # scene_cloud uses only the views the calibration kept
     pts, _, info = scene_cloud(scene, result)
     assert info["points"] == len(pts) > 0
+
+
+def test_scale_is_compared_with_the_ground_truth_only_for_the_synthetic_reconstruction():
+    from types import SimpleNamespace
+
+    from calibration.cli import evaluation_lines
+
+    I = np.eye(4)
+    res = SimpleNamespace(T_e1_c1=I, T_e2_c2=I, T_b1_b2=I, scale=2.0)
+    gt = SimpleNamespace(T_e1_c1=I, T_e2_c2=I, T_b1_b2=I, scale=1.0)
+    assert "  scale: 100.000%" in evaluation_lines(res, gt, "synthetic")
+    lines = evaluation_lines(res, gt, "colmap")
+    assert any("scale: not compared" in ln and "'colmap'" in ln for ln in lines)
+    assert not any("%" in ln for ln in lines)
