@@ -212,11 +212,13 @@ class SimPiper:
 
 
 def fast_config(**kw):
-    """An ExecutionConfig with short ramps and timeouts, for quick tests."""
+    """An ExecutionConfig with short ramps, for quick tests. The feedback timeout is 1 s: the simulated arms
+    answer from threads that a loaded CI machine can hold up for more than 0.15 s (a test that needs the
+    timeout to fire sets its own)."""
     from bimanual_app.hardware import ExecutionConfig
 
     base = dict(period_s=0.01, ramp_s=0.3, start_rate=0.3, speed_pct_start=20, speed_pct_max=100,
-                feedback_timeout_s=0.15, tracking_tol_rad=0.25, settle_timeout_s=2.0, settle_tol_rad=0.01)
+                feedback_timeout_s=1.0, tracking_tol_rad=0.25, settle_timeout_s=2.0, settle_tol_rad=0.01)
     base.update(kw)
     return ExecutionConfig(**base)
 

@@ -325,7 +325,7 @@ def test_one_silent_arm_stops_both():
         plan = {"primary": line_trajectory(Q_READY, Q_READY + DQ, 1.0),
                 "secondary": line_trajectory(Q_READY, Q_READY - DQ, 1.0)}
         with pytest.raises(FeedbackTimeout) as ei:
-            hw.execute(plan, approve_plan(plan, "pass", key=KEY), fast_config(), approval_key=KEY)
+            hw.execute(plan, approve_plan(plan, "pass", key=KEY), fast_config(feedback_timeout_s=0.15), approval_key=KEY)
         assert ei.value.arm == "secondary" and set(ei.value.stopped) == {"primary", "secondary"}
         assert s1.estop_time() is not None and s2.estop_time() is not None
         assert s1.estopped and s2.estopped
