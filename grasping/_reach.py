@@ -118,7 +118,10 @@ class ArmReach:
             return None
         # the world is built in the arm's own base frame (its primary slot has an identity base)
         scene = SceneMap(P_b, self.resolution, pad=0.2, source="scene map")
-        return CollisionWorld(self.robot, None, scene, margin=self.margin)
+        # the gripper's own shapes against the scene are left out: the grasp planner has checked them already,
+        # exactly (swept, against the octree and the object's own points), while this world's coarser map
+        # (``resolution`` voxels plus ``margin``) would reject fingertips that pass just above the table
+        return CollisionWorld(self.robot, None, scene, margin=self.margin, scene_exempt=tuple(self.gripper.links))
 
     @property
     def _pose_map(self):
@@ -181,24 +184,13 @@ class ArmReach:
         return prev, qs, ""
 
     def _collisions(self, Q: np.ndarray) -> str:
-        """'' when configurations Q (K, J) are collision free, else what collides.
-
-        The gripper's own shapes against the scene map are left out: the grasp planner has checked them
-        already, exactly (swept, against the octree and the object's own points), while the world's coarser
-        map (``resolution`` voxels plus ``margin``) would reject fingertips that pass just above the table.
-        """
+        """'' when configurations Q (K, J) are collision free, else what collides (the gripper's own shapes
+        are not checked against the scene: see ``_world``)."""
         valid = self.world.valid_batch(Q)
         for k in np.nonzero(~valid)[0]:
-            real = [e for e in self.world.explain(Q[k]) if not self._gripper_vs_scene(e)]
-            if real:
-                return f"{'grasp' if k == 0 else 'approach'} in collision: {real[0]}"
+            why = self.world.explain(Q[k]) or ["in collision"]
+            return f"{'grasp' if k == 0 else 'approach'} in collision: {why[0]}"
         return ""
-
-    def _gripper_vs_scene(self, text: str) -> bool:
-        # CollisionWorld.explain: "<arm> <shape> touches the scene map"; shape = link name (+ "#k")
-        parts = text.split()
-        return (text.endswith("touches the scene map") and len(parts) >= 2
-                and parts[1].split("#")[0] in self.gripper.links)
 
     def __call__(self, T_b_g: np.ndarray, width: np.ndarray | None = None,
                  retreat: np.ndarray | None = None) -> ReachResult:

@@ -166,3 +166,25 @@ def test_panda_world_uses_mesh_shapes(cloud):
     fast = w.valid_batch(Q)
     exact = np.array([w.distance(q).valid for q in Q])
     np.testing.assert_array_equal(fast, exact)
+
+
+def test_scene_exempt_shapes_skip_only_the_scene_check():
+    from bimanual_app.collision import CollisionWorld
+    from bimanual_app.robots import load_robot
+    from grasping import load_gripper
+
+    robot = load_robot("piper")
+    links = tuple(load_gripper("piper").links)
+    q = robot.neutral()
+    tcp = robot.fk_link(q, robot.tcp_link)[:3, 3]
+    rng = np.random.default_rng(0)
+    blob = tcp + rng.uniform(-0.005, 0.005, (200, 3))  # an obstacle right between the fingertips
+    plain = CollisionWorld(robot, None, blob)
+    exempt = CollisionWorld(robot, None, blob, scene_exempt=links)
+    assert not plain.valid(q) and any("touches the scene map" in e for e in plain.explain(q))
+    assert exempt.valid(q) and exempt.explain(q) == []
+    # the rest of the arm is still checked
+    elbow = robot.joint_placements(robot.full_q(q))[0, 3, :3, 3]
+    both = CollisionWorld(robot, None, np.vstack([blob, elbow + rng.uniform(-0.005, 0.005, (200, 3))]),
+                          scene_exempt=links)
+    assert not both.valid(q)

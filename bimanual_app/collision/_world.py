@@ -169,17 +169,20 @@ class CollisionWorld:
         self_margin: required clearance between non-adjacent links of one arm (m).
         openings: gripper opening of each arm (m) used for the finger shapes.
         crop: drop scene points farther than reach + 0.3 m from every base (they cannot matter).
+        scene_exempt: link names whose shapes are not checked against the scene (still against the other
+            arm and the arm itself): e.g. a gripper whose scene clearance a finer check already decided.
     """
 
     def __init__(self, robot, T_b1_b2: np.ndarray | None = None, scene=None, *, robot2=None,
                  resolution: float = 0.01, margin: float = 0.01, self_margin: float = 0.0,
-                 openings: tuple[float, float] = (0.0, 0.0), crop: bool = True):
+                 openings: tuple[float, float] = (0.0, 0.0), crop: bool = True, scene_exempt: tuple[str, ...] = ()):
         step = resolution  # broad-phase sample spacing along capsules
         self.arms = [_Arm(ARM_NAMES[0], robot, np.eye(4), openings[0], step)]
         if T_b1_b2 is not None:
             self.arms.append(_Arm(ARM_NAMES[1], robot2 or robot, T_b1_b2, openings[1], step))
         self.margin = float(margin)
         self.arm_margin = float(margin)
+        self.scene_exempt = frozenset(scene_exempt)
         self.self_margin = float(self_margin)
         self.resolution = float(resolution)
         if scene is None or isinstance(scene, SceneMap):
@@ -334,7 +337,9 @@ class CollisionWorld:
         sample_owner = np.concatenate([a.sample_owner + offs[k] for k, a in enumerate(self.arms)])
         self._tab = dict(
             arm_of=np.array(arm_of), local=np.array(local), radius=radius, exact=exact,
-            fixed=cat(lambda a: a.fixed), cover=cat(lambda a: a.cover),
+            fixed=cat(lambda a: a.fixed | np.array([n.split("#")[0] in self.scene_exempt for n in a.shapes.names],
+                                                   dtype=bool)),
+            cover=cat(lambda a: a.cover),
             sample_start=np.searchsorted(sample_owner, np.arange(len(radius))),
             pairs=P, pair_margin=np.array(margins), pair_exact=exact[P[:, 0]] & exact[P[:, 1]] if len(P) else np.zeros(0, bool),
             pair_rsum=radius[P[:, 0]] + radius[P[:, 1]] if len(P) else np.zeros(0), pair_kind=kinds,
@@ -470,7 +475,7 @@ class CollisionWorld:
             if self.scene is not None:
                 best = (np.inf, "")
                 for s, sh in enumerate(a.shapes.shapes):
-                    if a.fixed[s]:
+                    if a.fixed[s] or sh.name.split("#")[0] in self.scene_exempt:
                         continue
                     d = dist(sh.geometry, tfs[s], self.scene.octree, ident)
                     best = min(best, (d, sh.name))
