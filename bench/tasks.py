@@ -1,6 +1,6 @@
 """Task benchmark (issue 7): joint grasp and hand-over on synthetic scenes, judged against reality.
 
-    nice .venv/bin/python bench/tasks.py [--quick] [--scenes N] [--first-seed S] [--fresh] [--no-save]
+    nice .venv/bin/python bench/tasks.py [--quick] [--scenes N] [--first-seed S] [--fresh] [--no-save] [--with-masks]
 
 For each of N ``bijcr synth`` scenes (seeds S..S+N-1; 20 by default, 3 with --quick; 8 views per arm,
 5 objects, the emulator's "paper" noise), both tasks run twice:
@@ -13,6 +13,8 @@ For each of N ``bijcr synth`` scenes (seeds S..S+N-1; 20 by default, 3 with --qu
 
 ``segment`` runs without the scenes' per-image masks in both modes, although ``bijcr run`` and ``bijcr task``
 use masks when a scene has them: the synthetic scenes' masks are exact renders, which a lab's would not be.
+``--with-masks`` adds a third mode, the pipeline with those masks given to the segmenter (as ``bijcr run``
+does), to show what segmentation costs.
 
 A task counts as a success when the *same plan* also succeeds in the ground-truth world: the true objects
 (ground_truth.yaml: pose, size, mass) and the secondary arm at its true base pose
@@ -40,8 +42,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 TASKS = ("joint-grasp", "handover")
-MODES = ("pipeline", "gt")
-MODE_NAME = {"pipeline": "pipeline (calibrated)", "gt": "ground-truth transforms"}
+MODES = ("pipeline", "masks", "gt")
+MODE_NAME = {"pipeline": "pipeline (calibrated)", "masks": "pipeline (calibrated), segmented with the masks",
+             "gt": "ground-truth transforms"}
 TARGET = 0.90
 
 
@@ -92,7 +95,7 @@ def write_gt_calibration(scene_path: Path, cal_dir: Path) -> float:
     return time.perf_counter() - t
 
 
-def run_one(scene: Path, work: Path, task: str) -> dict:
+def run_one(scene: Path, work: Path, task: str, masks: bool = False) -> dict:
     """One task run; returns the facts the table needs."""
     from bimanual_app.io_utils import InputError
     from bimanual_app.tasks import TaskOptions, run_task
@@ -104,7 +107,7 @@ def run_one(scene: Path, work: Path, task: str) -> dict:
     try:
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
             res = run_task(TaskOptions(task, str(scene), work=str(work), out=str(out), quiet=True, record=False,
-                                       compare_truth=True, masks=False))
+                                       compare_truth=True, masks=masks))
         rec = res.record
         row["timings"] = dict(res.timings)
         row["planned"] = bool(rec.get("plans"))
@@ -131,20 +134,23 @@ def main() -> int:
     ap.add_argument("--fresh", action="store_true", help="re-make the scenes and every stage output")
     ap.add_argument("--no-save", action="store_true", help="do not write docs/bench/tasks.md")
     ap.add_argument("--base", default=str(ROOT / "runs" / "bench_tasks"), help="cache folder")
+    ap.add_argument("--with-masks", action="store_true",
+                    help="also run the pipeline with the scenes' (exact, synthetic) masks given to the segmenter")
     args = ap.parse_args()
+    modes = [m for m in MODES if m != "masks" or args.with_masks]
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     n = args.scenes or (3 if args.quick else 20)
     base = Path(args.base)
     seeds = list(range(args.first_seed, args.first_seed + n))
-    rows = {m: {t: [] for t in TASKS} for m in MODES}
-    stage_t = {m: {} for m in MODES}
+    rows = {m: {t: [] for t in TASKS} for m in modes}
+    stage_t = {m: {} for m in modes}
     synth_s = []
     t_all = time.perf_counter()
     for i, seed in enumerate(seeds):
         scene, dt = make_scene(base, seed, args.fresh)
         if dt:
             synth_s.append(dt)
-        for mode in MODES:
+        for mode in modes:
             work = base / mode / scene.name
             if args.fresh and work.exists():
                 shutil.rmtree(work)
@@ -153,7 +159,7 @@ def main() -> int:
                 if dt:
                     stage_t[mode].setdefault("ground-truth cloud", []).append(dt)
             for task in TASKS:
-                r = run_one(scene, work, task)
+                r = run_one(scene, work, task, masks=mode == "masks")
                 rows[mode][task].append(r)
                 for k, v in r["timings"].items():
                     if k != "total":
@@ -176,7 +182,7 @@ def main() -> int:
 
 def report(rows, stage_t, synth_s, n, seeds, total, args) -> str:
     cmd = "nice .venv/bin/python bench/tasks.py" + (" --quick" if args.quick else "") + \
-        (f" --scenes {args.scenes}" if args.scenes else "")
+        (f" --scenes {args.scenes}" if args.scenes else "") + (" --with-masks" if args.with_masks else "")
     L = ["# Task benchmark (joint grasp, hand-over)", "",
          f"Command: `{cmd}`", "",
          f"{n} synthetic scenes (`bijcr synth`, seeds {seeds[0]}..{seeds[-1]}, 8 views per arm, 5 objects, "
@@ -186,8 +192,9 @@ def report(rows, stage_t, synth_s, n, seeds, total, args) -> str:
          f"Total {total / 60:.1f} min on {os.cpu_count()} cores.", "",
          "| task | transforms | success (reality) | target | result | planned | preview on the reconstruction: success / agrees with reality |",
          "| --- | --- | --- | --- | --- | --- | --- |"]
+    modes = list(rows)
     for task in TASKS:
-        for mode in MODES:
+        for mode in modes:
             rs = rows[mode][task]
             k = len(rs)
             succ = sum(r["truth_ok"] for r in rs)
@@ -199,22 +206,23 @@ def report(rows, stage_t, synth_s, n, seeds, total, args) -> str:
             L.append(f"| {task} | {MODE_NAME[mode]} | {succ}/{k} = {100 * succ / max(k, 1):.0f} % | {target} | {res} "
                      f"| {planned}/{k} | {est}/{k} / {agree}/{planned} |")
     L += ["", "Time per stage (median seconds per run; a stage's time counts only where it ran):", "",
-          "| stage | pipeline | ground-truth transforms | ratio |", "| --- | --- | --- | --- |"]
+          "| stage | " + " | ".join(MODE_NAME[m] for m in modes) + " | ratio |",
+          "| --- " * (len(modes) + 2) + "|"]
     names = ["calibrate", "ground-truth cloud", "segment", "grasp", "load", "plan", "preview", "preview_truth"]
-    sims = [r.get("sim_s", 0.0) for m in MODES for t in TASKS for r in rows[m][t] if r.get("sim_s")]
-    prev = [v for m in MODES for v in stage_t[m].get("preview", [])]
+    sims = [r.get("sim_s", 0.0) for m in modes for t in TASKS for r in rows[m][t] if r.get("sim_s")]
+    prev = [v for m in modes for v in stage_t[m].get("preview", [])]
     for s in names:
-        vals = [stage_t[m].get(s, []) for m in MODES]
+        vals = [stage_t[m].get(s, []) for m in modes]
         if not any(vals):
             continue
         cells = [f"{np.median(v):.2f} s (n={len(v)})" if v else "-" for v in vals]
         ratio = ""
         if s == "preview" and sims and prev:
             ratio = f"{np.median(prev) / np.median(sims):.2f} x simulated time"
-        L.append(f"| {s} | {cells[0]} | {cells[1]} | {ratio} |")
+        L.append(f"| {s} | {' | '.join(cells)} | {ratio} |")
     if synth_s:
-        L.append(f"| (making a synthetic scene) | {np.median(synth_s):.1f} s (n={len(synth_s)}) | | |")
-    fails = [(m, t, r) for m in MODES for t in TASKS for r in rows[m][t] if not r["truth_ok"]]
+        L.append(f"| (making a synthetic scene) | {np.median(synth_s):.1f} s (n={len(synth_s)}) |" + " |" * len(modes))
+    fails = [(m, t, r) for m in modes for t in TASKS for r in rows[m][t] if not r["truth_ok"]]
     if fails:
         L += ["", "Failures:", ""]
         for m, t, r in fails:

@@ -75,8 +75,9 @@ def object_lifts(motion: TaskMotion, up: np.ndarray, lift: float) -> list[tuple[
 
     Tried in order: straight up; up while moving 3 cm, then 6 cm, horizontally away from the nearest
     obstacle around the object (a neighbour it touches); up while moving 3 cm, then 6 cm, towards the
-    line between the two bases (nearer both arms); each horizontal move reached over the first half of
-    the lift. Raises PlanFailure when none is clear.
+    line between the two bases (nearer both arms); up while moving 4 cm, then 8 cm, towards the midpoint
+    of the bases (an object near one base is at the far end of the other's reach); each horizontal move
+    reached over the first half of the lift. Raises PlanFailure when none is clear.
     """
     from scipy.spatial import cKDTree
 
@@ -106,6 +107,14 @@ def object_lifts(motion: TaskMotion, up: np.ndarray, lift: float) -> list[tuple[
             if dist > 0.01:
                 step = -off / dist * min(k, dist)
                 cand.append((step, f"up and {np.linalg.norm(step) * 100:.0f} cm towards the line between the bases"))
+        # towards the midpoint of the bases: an object near one base is at the far end of the other's reach
+        mid = 0.5 * line
+        to_mid = mid - c
+        n_mid = float(np.linalg.norm(to_mid))
+        if n_mid > 0.01:
+            for k in (0.04, 0.08):
+                step = to_mid / n_mid * min(k, n_mid)
+                cand.append((step, f"up and {np.linalg.norm(step) * 100:.0f} cm towards the midpoint of the bases"))
     n = max(2, int(np.ceil(lift / 0.01)) + 1)
     s = np.linspace(0.0, 1.0, n)
     first, out = None, []
