@@ -117,6 +117,8 @@ class TaskMotion:
         segment_points: (K,3) the object's points in the cloud (cut out of the map with ``cut_radius``).
         body: the object's estimated :class:`bimanual_app.simulation.BodyShape`; map points inside it
             (grown by ``cut_radius``) are cut out too.
+        seed: OMPL's random seed (one per process: OMPL takes the first), so that a task run again on the
+            same inputs plans the same motions, and its preview approval stays valid; None: time-seeded.
         plan_time: OMPL time limit per query (s).
         speed: fraction of the velocity/acceleration limits used.
         margin: collision margin (m) of free motions.
@@ -126,7 +128,7 @@ class TaskMotion:
     def __init__(self, robot, T_b1_b2: np.ndarray, points: np.ndarray, object_points: np.ndarray,
                  segment_points: np.ndarray | None = None, plan_time: float = 5.0, speed: float = 0.5, margin: float = 0.01,
                  cut_radius: float = 0.015, contact_margin: float = CONTACT_MARGIN, resolution: float = MAP_RESOLUTION,
-                 body=None):
+                 body=None, seed: int | None = 0):
         from bimanual_app.planning import BimanualSetup
 
         self.robot = robot
@@ -135,6 +137,7 @@ class TaskMotion:
         self.world = self.setup.world
         self.plan_time = float(plan_time)
         self.contact_margin = float(contact_margin)
+        self.seed = seed
         self.speed = float(speed)
         self.object_points = np.asarray(object_points, dtype=np.float64)
         self.full_map = self.world.scene
@@ -223,7 +226,7 @@ class TaskMotion:
         start = {a: q_now[a] for a in arms}
         if all(all(np.allclose(g[a], q_now[a], atol=1e-9) for a in arms) for g in goals[:1]):
             return {a: _Traj(np.array([0.0, 0.05]), np.stack([q_now[a], q_now[a]])) for a in arms}
-        plan = self.setup.plan_configurations(arms, start, goals, q_now, timeout=self.plan_time)
+        plan = self.setup.plan_configurations(arms, start, goals, q_now, timeout=self.plan_time, seed=self.seed)
         self.stats["plan_s"] += float(plan.timings.get("total", plan.timings.get("plan", 0.0)))
         if not plan.success:
             stage = {"search": "plan", "goal": "reach", "start": "start"}.get(plan.reason, "plan")
