@@ -74,19 +74,31 @@ window.addEventListener('load', () => {
   const imgs = [...document.images];
   const bad = imgs.filter(i => !(i.complete && i.naturalWidth > 0)).map(i => i.alt || i.src.slice(0, 40));
   const vids = [...document.querySelectorAll('video')];
-  document.body.setAttribute('data-probe', JSON.stringify({images: imgs.length, broken: bad, videos: vids.length}));
+  const gifs = imgs.filter(i => i.src.startsWith('data:image/gif') && i.complete && i.naturalWidth > 0).length;
+  document.body.setAttribute('data-probe', JSON.stringify({images: imgs.length, broken: bad, videos: vids.length,
+                                                           gifs: gifs}));
 });
 </script>"""
 
 
 def test_report_renders_in_headless_chromium(scene, tmp_path):
-    """Open report.html in Debian's chromium (installed by `make test`) and check every figure loads."""
+    """Open report.html in Debian's chromium (installed by `make test`) and check every figure and the
+    preview animation load."""
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     assert chromium, "chromium is missing: `make test` installs it (tools/setup_test_deps.sh)"
     out = tmp_path / "out"
+    # a real hand-over preview (the small task fixture: a few seconds) where the report looks for it, so the
+    # page carries an animation as well as the figures
+    from bimanual_app.robots import load_robot
+    from tests._task_fixtures import make_task_workdir
+
+    fx_scene, fx_work = make_task_workdir(tmp_path / "fx", load_robot("piper"))
+    assert bijcr(["task", "handover", str(fx_scene), "--work", str(fx_work), "--out", str(out / "tasks" / "handover"),
+                  "--frame-size", "160x120", "--quiet"]) == 0
     assert bijcr(["run", str(scene), "--out", str(out), "--skip", "grasp", "--skip", "joint-grasp",
                   "--skip", "handover"]) == 0
     page = (out / "report.html").read_text()
+    assert page.count('src="data:image/gif;base64,') == 1  # the preview animation, embedded
     probe = tmp_path / "probe.html"
     probe.write_text(page.replace("</body>", _PROBE + "</body>"))
     flags = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -97,7 +109,8 @@ def test_report_renders_in_headless_chromium(scene, tmp_path):
     m = re.search(r"data-probe=\"([^\"]*)\"", dom)
     assert m, "the page did not finish loading in chromium"
     result = json.loads(m.group(1).replace("&quot;", '"'))
-    assert result["images"] >= 3 and result["broken"] == []
+    assert result["images"] >= 4 and result["broken"] == []  # figures and the animation all decoded
+    assert result["gifs"] == 1
     shot = tmp_path / "report.png"
     subprocess.run([chromium, *flags, "--window-size=1200,2000", f"--screenshot={shot}", (out / "report.html").as_uri()],
                    capture_output=True, timeout=120)
