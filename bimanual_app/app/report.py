@@ -154,7 +154,8 @@ def _task_section(d: Path, name: str) -> str:
         out.append(f'<p>Outcome: <span class="{cls}">{"success" if ok else "failure"}</span>'
                    f" – {html.escape(str(t.get('reason', t.get('message', ''))))}</p>")
         if t.get("object") is not None:
-            out.append(f"<p>Object: {html.escape(str(t.get('object')))} {html.escape(str(t.get('object_reason', '')))}</p>")
+            why = str(t.get("object_reason", ""))
+            out.append(f"<p>Object {html.escape(str(t.get('object')))}" + (f" ({html.escape(why)})" if why else "") + "</p>")
     for f in sorted(d.glob("*.gif")) + sorted(d.glob("*.mp4")):
         out.append(_embed(f, f"{name}: physics preview ({f.name})"))
     for f in sorted(d.glob("*.png")):
