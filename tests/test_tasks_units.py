@@ -99,3 +99,15 @@ def test_carried_object_may_slide_past_a_touching_neighbour_but_not_hit_others()
     motion2 = TaskMotion(load_robot("piper"), FIX_T_B1_B2, np.vstack([points, shelf]), obj, obj)
     assert motion2.object_clear(lift(0.10))  # an overhang above it stops the lift
     assert motion2.object_clear(lift(0.04)) == []  # (below it, not)
+
+
+def test_segment_stage_uses_the_scene_masks_when_there_are_some(tmp_path):
+    from bimanual_app.tasks._inputs import stage_paths
+
+    paths = stage_paths(tmp_path / "work")
+    scene = tmp_path / "scene"
+    (scene / "primary").mkdir(parents=True)
+    assert "--masks" not in paths.argv(scene)["segment"]
+    (scene / "primary" / "masks").mkdir()
+    assert paths.argv(scene)["segment"][-2:] == ["--masks", str(scene)]
+    assert "--masks" not in paths.argv(scene, masks=False)["segment"]  # bijcr task --no-masks

@@ -44,6 +44,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="time limit per motion-planning query in seconds (default 5)")
     p.add_argument("--frame-size", default="320x240", metavar="WxH", help="size of the preview frames (default 320x240)")
     p.add_argument("--no-record", action="store_true", help="no GIF / key frames (faster; the verdict is the same)")
+    p.add_argument("--no-masks", action="store_true",
+                   help="when the segment stage runs here, do not give it the scene's per-image masks (used by "
+                        "default when the scene has them, as `bijcr run` does)")
     p.add_argument("--quiet", action="store_true", help="print only the outcome")
 
 
@@ -66,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
                        gui=args.gui, execute=args.execute, truth_objects=args.truth_objects,
                        plan_time=args.plan_time, quiet=args.quiet, can_primary=args.can_primary,
                        can_secondary=args.can_secondary, can_interface=args.can_interface,
-                       record=not args.no_record, frame_size=(w, h))
+                       record=not args.no_record, frame_size=(w, h), masks=False if args.no_masks else None)
     res = run_task(opts)
     status = "SUCCESS" if res.success else "FAILED"
     print(f"{args.task}: {status} - {res.reason}")
