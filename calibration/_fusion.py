@@ -30,23 +30,32 @@ TOL_REL = 0.05  # a point is "in front of" a surface when nearer than (1 - TOL_R
 MIN_VOTES = 2
 
 
+MAX_FIT_RMS_PX = 1.5  # a point map whose rays a pinhole fits worse than this (pixels) does not vote
+MAX_DROP_FRACTION = 0.25  # dropping more than this of the points means the maps disagree wholesale: skip
+
+
 def pointmap_intrinsics(pts_c: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """(4,) ``fx, fy, cx, cy`` of one point map, in its own pixels, by least squares on
-    ``col = fx x/z + cx`` and ``row = fy y/z + cy``.
+    ``col = fx x/z + cx`` and ``row = fy y/z + cy``; NaN when fewer than 3 pixels are valid or the fit's
+    RMS exceeds ``MAX_FIT_RMS_PX`` (a map that is not a pinhole image: resampled, distorted).
 
     Args:
         pts_c: (H, W, 3) points in the camera frame (z forward).
-        valid: (H, W) bool, the pixels to fit (finite, z > 0); at least 3 needed.
+        valid: (H, W) bool, the pixels to fit (finite, z > 0).
     """
     H, W = valid.shape
     if valid.sum() < 3:
         return np.array([np.nan] * 4)
     cols, rows = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
     z = pts_c[..., 2][valid]
-    out = []
+    out, sq = [], 0.0
     for k, pix in ((0, cols), (1, rows)):
         A = np.stack([pts_c[..., k][valid] / z, np.ones_like(z)], axis=1)
-        out.append(np.linalg.lstsq(A, pix[valid], rcond=None)[0])
+        sol = np.linalg.lstsq(A, pix[valid], rcond=None)[0]
+        sq += float(np.mean((A @ sol - pix[valid]) ** 2))
+        out.append(sol)
+    if np.sqrt(sq / 2) > MAX_FIT_RMS_PX:
+        return np.array([np.nan] * 4)
     (fx, cx), (fy, cy) = out
     return np.array([fx, fy, cx, cy])
 
@@ -62,6 +71,9 @@ def free_space_outliers(pts3d_w: np.ndarray, T_w_c: np.ndarray, valid: np.ndarra
             camera). Only valid points vote and are judged.
         tol_rel: relative depth tolerance (0.05: 5 cm at 1 m).
         min_votes: the fewest votes against that can drop a point.
+
+    Views whose map a pinhole does not fit (``pointmap_intrinsics`` NaN) do not vote. When more than
+    ``MAX_DROP_FRACTION`` of the points would go, nothing is dropped.
     """
     from scipy.ndimage import maximum_filter, minimum_filter
 
@@ -101,4 +113,8 @@ def free_space_outliers(pts3d_w: np.ndarray, T_w_c: np.ndarray, valid: np.ndarra
             against[idx] += has & (zi < (1.0 - tol_rel) * zn)
             support[idx] += has & (zi >= (1.0 - tol_rel) * zn) & (zi <= (1.0 + tol_rel) * zf)
         out[v][ok[v]] = (against >= min_votes) & (against > support)
+    if out.sum() > MAX_DROP_FRACTION * max(int(ok.sum()), 1):
+        # the views disagree wholesale (a reconstruction whose poses and maps do not fit each other):
+        # that is for the calibration's own checks to report, not for this filter to hide
+        return np.zeros_like(out)
     return out

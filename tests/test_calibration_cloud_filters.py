@@ -100,3 +100,29 @@ def test_free_space_keeps_a_real_object_seen_by_all_views():
         box[v] = hit
     out = free_space_outliers(maps, T)
     assert out[box].mean() < 0.05
+
+
+def test_free_space_stands_down_when_maps_do_not_fit_a_pinhole_or_disagree_wholesale():
+    T = views(8)
+    maps = np.stack([render_plane(t) for t in T])
+    # a map resampled with a warp is no pinhole image: its intrinsics are not trusted (it does not vote)
+    warped = maps[1].copy()
+    warped[:, :, :] = maps[1][:, ::-1, :][:, np.argsort(np.random.default_rng(0).random(W)), :][:, ::-1, :]
+    Pc = (warped - T[1][:3, 3]) @ T[1][:3, :3]
+    assert np.all(np.isnan(pointmap_intrinsics(Pc, np.all(np.isfinite(Pc), axis=-1))))
+    # half the views registered 6 cm above the other half (maps and poses together): the two halves see
+    # through each other's table, the filter would drop a third of all points, so it drops none
+    shifted, smaps = T.copy(), maps.copy()
+    shifted[::2, 2, 3] += 0.06
+    smaps[::2, ..., 2] += 0.06
+    maps = smaps
+    out = free_space_outliers(maps, shifted)
+    assert not out.any()
+    import calibration._fusion as fusion
+
+    try:  # (without the stand-down it would have dropped more than a quarter of the points)
+        fusion.MAX_DROP_FRACTION = 1.0
+        seen = np.all(np.isfinite(maps), axis=-1)
+        assert free_space_outliers(maps, shifted)[seen].mean() > 0.25
+    finally:
+        fusion.MAX_DROP_FRACTION = 0.25
