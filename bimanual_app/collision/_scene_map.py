@@ -103,9 +103,13 @@ class SceneMap:
             raise ValueError(f"mask: expected shape ({len(self.points)},), got {mask.shape}")
         return SceneMap(self.points[~mask], self.resolution, self.pad, source=self.source)
 
-    def without_near(self, points: np.ndarray, radius: float) -> "SceneMap":
-        """A new map without the points within ``radius`` of any of ``points`` (M,3)."""
+    def near_mask(self, points: np.ndarray, radius: float) -> np.ndarray:
+        """(N,) True for the map's points within ``radius`` of any of ``points`` (M,3)."""
         from scipy.spatial import cKDTree
 
         d, _ = cKDTree(np.asarray(points, dtype=np.float64)).query(self.points, k=1, distance_upper_bound=radius)
-        return self.without(np.isfinite(d))
+        return np.isfinite(d)
+
+    def without_near(self, points: np.ndarray, radius: float) -> "SceneMap":
+        """A new map without the points within ``radius`` of any of ``points`` (M,3)."""
+        return self.without(self.near_mask(points, radius))

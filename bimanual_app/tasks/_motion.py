@@ -142,13 +142,10 @@ class TaskMotion:
         self.object_points = np.asarray(object_points, dtype=np.float64)
         self.full_map = self.world.scene
         cut = self.object_points if segment_points is None else np.vstack([segment_points, self.object_points])
-        if body is None:
-            self.cut_map = self.full_map.without_near(cut, cut_radius)
-        else:  # also whatever lies inside the object's body (its points a segmentation gave another label)
-            from scipy.spatial import cKDTree
-
-            d, _ = cKDTree(cut).query(self.full_map.points, k=1, distance_upper_bound=cut_radius)
-            self.cut_map = self.full_map.without(np.isfinite(d) | body.contains(self.full_map.points, cut_radius))
+        drop = self.full_map.near_mask(cut, cut_radius)
+        if body is not None:  # also whatever lies inside the object's body (points segmented with another label)
+            drop |= body.contains(self.full_map.points, cut_radius)
+        self.cut_map = self.full_map.without(drop)
         self.stats = {"ompl_queries": 0, "cartesian_moves": 0, "ik_calls": 0, "plan_s": 0.0}
 
     # ------------------------------------------------------------------ collision context

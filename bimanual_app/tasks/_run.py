@@ -214,8 +214,8 @@ def _run_loaded(opts, scene, inputs, robot, staging: OutputDir, timings: dict) -
         order = [oid]
         if opts.object_id is None:
             order += [o for o in dict.fromkeys(c.object_id for c in cands) if o != oid][:MAX_FALLBACK_OBJECTS]
-        plan, motion, obj_pts, tried = None, None, None, []
-        for n_obj, o in enumerate(order):
+        plan, motion, tried = None, None, []
+        for o in order:
             shapes, warns = estimated_shapes(inputs.points, inputs.labels, table, ids=[o])
             rec["warnings"] += warns
             if o not in shapes:
@@ -226,7 +226,7 @@ def _run_loaded(opts, scene, inputs, robot, staging: OutputDir, timings: dict) -
             motion_o = TaskMotion(robot, inputs.T_b1_b2, inputs.points[~robot_pts], pts_o,
                                   inputs.points[inputs.labels == o], plan_time=opts.plan_time, speed=opts.speed,
                                   body=sh)
-            if n_obj == 0:
+            if motion is None:  # the first map built: the start must be free in it
                 problems = motion_o.valid(q_start)
                 if problems:
                     return fail("start", "the arms' start configuration is in collision: " + "; ".join(problems[:3]))
@@ -242,7 +242,7 @@ def _run_loaded(opts, scene, inputs, robot, staging: OutputDir, timings: dict) -
                 except PlanFailure as e:
                     errors.append(e)
                     _log(opts, f"candidate {k + 1} of object {o}: {e}")
-            motion, obj_pts = motion_o, pts_o
+            motion = motion_o
             if plan is not None:
                 if o != oid:
                     first = tried[0][1]
@@ -255,7 +255,8 @@ def _run_loaded(opts, scene, inputs, robot, staging: OutputDir, timings: dict) -
                 break
             tried.append((o, errors[0], len(errors)) if errors else (o, PlanFailure("grasp", "no candidate"), 0))
         timings["plan"] = time.perf_counter() - t
-        rec["planning"] = {k: (round(v, 3) if isinstance(v, float) else v) for k, v in motion.stats.items()}
+        if motion is not None:
+            rec["planning"] = {k: (round(v, 3) if isinstance(v, float) else v) for k, v in motion.stats.items()}
         if tried:
             rec["objects_tried"] = [{"object": o, "reason": e.message, "candidates": n} for o, e, n in tried]
         if plan is None:
