@@ -1,6 +1,7 @@
 """Task benchmark (issue 7): joint grasp and hand-over on synthetic scenes, judged against reality.
 
     nice .venv/bin/python bench/tasks.py [--quick] [--scenes N] [--first-seed S] [--fresh] [--no-save] [--with-masks]
+        [--jobs N]
 
 For each of N ``bijcr synth`` scenes (seeds S..S+N-1; 20 by default, 3 with --quick; 8 views per arm,
 5 objects, the emulator's "paper" noise), both tasks run twice:
@@ -126,6 +127,34 @@ def run_one(scene: Path, work: Path, task: str, masks: bool = False) -> dict:
     return row
 
 
+def run_scene(job) -> tuple[dict, dict, float]:
+    """Every mode and task on one scene: (rows: mode -> task -> [row], stage seconds: mode -> stage -> [s],
+    seconds spent making the scene)."""
+    base, seed, i, n, modes, fresh = job
+    scene, synth_dt = make_scene(base, seed, fresh)
+    rows = {m: {t: [] for t in TASKS} for m in modes}
+    stage_t = {m: {} for m in modes}
+    for mode in modes:
+        work = base / mode / scene.name
+        if fresh and work.exists():
+            shutil.rmtree(work)
+        if mode == "gt":
+            dt = write_gt_calibration(scene, work / "calibration")
+            if dt:
+                stage_t[mode].setdefault("ground-truth cloud", []).append(dt)
+        for task in TASKS:
+            r = run_one(scene, work, task, masks=mode == "masks")
+            rows[mode][task].append(r)
+            for k, v in r["timings"].items():
+                if k != "total":
+                    stage_t[mode].setdefault(k, []).append(v)
+            r["scene"] = scene.name
+            _log(f"scene {i + 1}/{n} (seed {seed}) {mode:8s} {task:11s}: "
+                 f"{'OK  ' if r['truth_ok'] else 'FAIL'} object {r.get('object')} ({r['wall']:.1f} s)"
+                 + ("" if r["truth_ok"] else f" [{r['stage']}] {r['reason'][:150]}"))
+    return rows, stage_t, synth_dt
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="3 scenes")
@@ -134,6 +163,7 @@ def main() -> int:
     ap.add_argument("--fresh", action="store_true", help="re-make the scenes and every stage output")
     ap.add_argument("--no-save", action="store_true", help="do not write docs/bench/tasks.md")
     ap.add_argument("--base", default=str(ROOT / "runs" / "bench_tasks"), help="cache folder")
+    ap.add_argument("--jobs", type=int, default=1, help="scenes run in parallel (processes)")
     ap.add_argument("--with-masks", action="store_true",
                     help="also run the pipeline with the scenes' (exact, synthetic) masks given to the segmenter")
     args = ap.parse_args()
@@ -146,28 +176,22 @@ def main() -> int:
     stage_t = {m: {} for m in modes}
     synth_s = []
     t_all = time.perf_counter()
-    for i, seed in enumerate(seeds):
-        scene, dt = make_scene(base, seed, args.fresh)
+    jobs = [(base, seed, i, n, modes, args.fresh) for i, seed in enumerate(seeds)]
+    if args.jobs > 1:  # scenes in parallel (one process each at a time); results gathered in seed order
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(args.jobs) as ex:
+            results = list(ex.map(run_scene, jobs))
+    else:
+        results = [run_scene(j) for j in jobs]
+    for scene_rows, scene_t, dt in results:
         if dt:
             synth_s.append(dt)
         for mode in modes:
-            work = base / mode / scene.name
-            if args.fresh and work.exists():
-                shutil.rmtree(work)
-            if mode == "gt":
-                dt = write_gt_calibration(scene, work / "calibration")
-                if dt:
-                    stage_t[mode].setdefault("ground-truth cloud", []).append(dt)
             for task in TASKS:
-                r = run_one(scene, work, task, masks=mode == "masks")
-                rows[mode][task].append(r)
-                for k, v in r["timings"].items():
-                    if k != "total":
-                        stage_t[mode].setdefault(k, []).append(v)
-                r["scene"] = scene.name
-                _log(f"scene {i + 1}/{n} (seed {seed}) {mode:8s} {task:11s}: "
-                     f"{'OK  ' if r['truth_ok'] else 'FAIL'} object {r.get('object')} ({r['wall']:.1f} s)"
-                     + ("" if r["truth_ok"] else f" [{r['stage']}] {r['reason'][:150]}"))
+                rows[mode][task] += scene_rows[mode][task]
+            for k, v in scene_t[mode].items():
+                stage_t[mode].setdefault(k, []).extend(v)
     total = time.perf_counter() - t_all
     text = report(rows, stage_t, synth_s, n, seeds, total, args)
     print(text)
@@ -182,7 +206,8 @@ def main() -> int:
 
 def report(rows, stage_t, synth_s, n, seeds, total, args) -> str:
     cmd = "nice .venv/bin/python bench/tasks.py" + (" --quick" if args.quick else "") + \
-        (f" --scenes {args.scenes}" if args.scenes else "") + (" --with-masks" if args.with_masks else "")
+        (f" --scenes {args.scenes}" if args.scenes else "") + (" --with-masks" if args.with_masks else "") + \
+        (f" --jobs {args.jobs}" if args.jobs > 1 else "")
     L = ["# Task benchmark (joint grasp, hand-over)", "",
          f"Command: `{cmd}`", "",
          f"{n} synthetic scenes (`bijcr synth`, seeds {seeds[0]}..{seeds[-1]}, 8 views per arm, 5 objects, "

@@ -52,6 +52,40 @@ class ArmGrasps:
         return len(self.index)
 
 
+class LiftingReach:
+    """A reach filter that also asks the arm to carry each grasp it reaches ``lift`` metres along ``up_b``
+    (3,; the arm's base frame) in a straight line, gripper orientation kept: a two-arm grasp is only worth
+    having if both arms can then lift the object. Wraps an ``ArmReach`` (needs its ``follow``); everything
+    else (``prior``, ``robot``, ...) is the wrapped filter's."""
+
+    def __init__(self, reach, up_b: np.ndarray, lift: float):
+        self.reach, self.up_b, self.lift = reach, np.asarray(up_b, dtype=np.float64), float(lift)
+
+    def __getattr__(self, name):
+        return getattr(self.reach, name)
+
+    def __call__(self, T_b_g: np.ndarray, width: np.ndarray | None = None, retreat: np.ndarray | None = None):
+        T_b_g = np.asarray(T_b_g, dtype=np.float64).reshape(-1, 4, 4)
+        res = self.reach(T_b_g, width, retreat)
+        res.reason = list(res.reason) + [""] * (len(T_b_g) - len(res.reason))
+        for k in np.nonzero(res.ok)[0]:
+            T = rotate_about_approach(T_b_g[k]) if res.flipped[k] else T_b_g[k]
+            why = self.reach.follow(T, res.q[k], self.up_b, self.lift)
+            if why:
+                res.ok[k] = False
+                res.reason[k] = f"cannot lift it {self.lift * 100:.0f} cm: {why}"
+        return res
+
+
+def lifting_arm(arm: Arm, up_b1: np.ndarray, lift: float) -> Arm | None:
+    """``arm`` with a ``LiftingReach`` filter (lift along ``up_b1`` (3,), in b1), or None when its filter
+    cannot follow a straight line (a plain callable filter)."""
+    if not hasattr(arm.reach, "follow"):
+        return None
+    up_b = inv_T(arm.T_b1_b)[:3, :3] @ np.asarray(up_b1, dtype=np.float64)
+    return Arm(arm.name, arm.T_b1_b, LiftingReach(arm.reach, up_b, lift))
+
+
 def _reach_either_way(arm: Arm, T_b: np.ndarray, width: np.ndarray, retreats_b1: np.ndarray, T_b_b1: np.ndarray
                       ) -> tuple[ReachResult, np.ndarray]:
     """Reach filter on grasps (n, 4, 4) that have several ways in (``retreats_b1`` (n, R, 3) unit directions to

@@ -97,7 +97,7 @@ def _object_dict(op: ObjectPlan, T_b1_b2: np.ndarray | None, arms_checked: bool)
     d["joint_grasps"] = joint
     h = op.handover
     if h is not None:
-        giver = op.reach["primary"]
+        giver = h.givers if h.givers is not None else op.reach["primary"]
         gi = h.giver_index
         d["handover"] = {
             "T_move": h.T_move,

@@ -26,10 +26,10 @@ import numpy as np
 from bimanual_app.io_utils import InputError, Problem
 
 from ._antipodal import GraspSet, SamplerParams, sample_grasps
-from ._arms import Arm, ArmGrasps, TwoArmCheck, reachable_by_group, reachable_grasps
+from ._arms import Arm, ArmGrasps, TwoArmCheck, lifting_arm, reachable_by_group, reachable_grasps
 from ._collision import GripperCollider, SceneOctree
 from ._gripper import GripperModel
-from ._handover import Handover, HandoverParams, plan_handover
+from ._handover import Handover, HandoverParams, handover_givers, plan_handover
 from ._inputs import SceneCloud
 from ._joint import JointPair, joint_pairs
 from ._objects import ObjectGeometry, Support, check_graspable, closed_geometry, estimate_support, object_geometry
@@ -49,6 +49,8 @@ class PlanParams:
     min_object_points: fewer points than this is an empty segment.
     joint_for_all: also look for two-arm pairs on objects one arm can lift (when they are long enough).
     max_joint_pairs: two-arm pairs kept per kind (push, pinch).
+    joint_lift_check: two-arm grasps are first looked for among those both arms can also carry this far
+        straight up (the task's lifts are 11-15 cm); 0 turns the check off.
     handover: plan a hand-over for objects one arm can lift (needs both arms).
     workspace_radius: background points farther than this from every base (horizontally) are dropped.
     retry_factor: when no arm reaches any grasp of an object, sample again with this many times the
@@ -71,6 +73,7 @@ class PlanParams:
     joint_min_extent: float = 0.15
     handover: bool = True
     max_joint_pairs: int = 5
+    joint_lift_check: float = 0.12
     workspace_radius: float = 1.0
     retry_factor: int = 4
 
@@ -172,7 +175,7 @@ def plan_object(k: int, cloud: SceneCloud, support: Support, gripper: GripperMod
             plan.timings["joint"] = time.perf_counter() - t1
         if plan.mode == "single" and params.handover and len(plan.reach.get("primary", [])):
             t1 = time.perf_counter()
-            _handover(plan, support, gripper, collider, arms, check, params)
+            _handover(plan, support, gripper, collider, arms, check, params, cloud.points[~mask])
             plan.timings["handover"] = time.perf_counter() - t1
     elif arms:
         plan.notes.append("secondary arm unknown (no T_b1_b2): no joint grasps or hand-over")
@@ -255,12 +258,37 @@ def _single(plan: ObjectPlan, support: Support, gripper: GripperModel, collider:
 
 def _joint(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: GripperCollider, others: SceneOctree,
            arms: dict[str, Arm], check: TwoArmCheck | None, params: PlanParams, long_side: float) -> None:
-    """Two-arm pairs: push pairs on opposite faces, and pinch pairs towards the two ends of a long object."""
+    """Two-arm pairs: push pairs on opposite faces, and pinch pairs towards the two ends of a long object.
+
+    Each arm's grasps are first checked with ``lifting_arm`` (the arm must also carry the grasp
+    ``params.joint_lift_check`` straight up): a pair the arms cannot lift is no two-arm grasp. When that
+    leaves no pair, the plain reach check is used, and the task's planner tries other lifts.
+    """
     geo = plan.geometry
-    pairs: list[JointPair] = []
     plan.stats["push"] = {}
     push = push_contacts(geo, support, gripper, collider, others, params.push, plan.stats["push"])
     plan.push = push
+    lifting = {name: lifting_arm(arm, support.up, params.joint_lift_check) for name, arm in arms.items()}
+    rounds = [lifting, arms] if params.joint_lift_check > 0 and all(lifting.values()) else [arms]
+    for r, round_arms in enumerate(rounds):
+        pairs = _joint_pairs(plan, support, collider, round_arms, check, params, long_side, push)
+        plan.stats["joint_lift_checked"] = r == 0 and len(rounds) == 2
+        if pairs:
+            break
+    pairs.sort(key=lambda p: -p.score)  # the best few of each kind, best first
+    plan.joint = ([p for p in pairs if p.kind == "push"][: params.max_joint_pairs]
+                  + [p for p in pairs if p.kind == "pinch"][: params.max_joint_pairs])
+    plan.joint.sort(key=lambda p: -p.score)
+    if plan.mode == "joint" and not plan.joint:
+        plan.notes.append("no balanced two-arm grasp that both arms reach without colliding"
+                          f" ({len(push)} push contacts on its faces)")
+
+
+def _joint_pairs(plan: ObjectPlan, support: Support, collider: GripperCollider, arms: dict[str, Arm],
+                 check: TwoArmCheck | None, params: PlanParams, long_side: float, push) -> list[JointPair]:
+    """One round of ``_joint``: each arm's reachable push contacts and end pinches, and the pairs of them."""
+    geo = plan.geometry
+    pairs: list[JointPair] = []
     if len(push):
         for name, arm in arms.items():
             # each face gets its own reach budget; the faces that look towards this arm's base first
@@ -287,17 +315,11 @@ def _joint(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: 
         pp, plan.stats["joint_pinch"] = joint_pairs(geo, support, plan.pinch_reach["primary"],
                                                     plan.pinch_reach["secondary"], collider, check, params.max_joint_pairs)
         pairs += pp
-    pairs.sort(key=lambda p: -p.score)  # the best few of each kind, best first
-    plan.joint = ([p for p in pairs if p.kind == "push"][: params.max_joint_pairs]
-                  + [p for p in pairs if p.kind == "pinch"][: params.max_joint_pairs])
-    plan.joint.sort(key=lambda p: -p.score)
-    if plan.mode == "joint" and not plan.joint:
-        plan.notes.append("no balanced two-arm grasp that both arms reach without colliding"
-                          f" ({len(push)} push contacts on its faces)")
+    return pairs
 
 
 def _handover(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: GripperCollider,
-              arms: dict[str, Arm], check: TwoArmCheck | None, params: PlanParams) -> None:
+              arms: dict[str, Arm], check: TwoArmCheck | None, params: PlanParams, obstacles_b1: np.ndarray) -> None:
     """A hand-over: receiver grasps sampled on the object in the air (its bottom closed, from every side)."""
     closed = closed_geometry(plan.geometry, support)
     # every collision-free candidate, not only the best-scored: those cluster at the object's centre, where
@@ -305,8 +327,13 @@ def _handover(plan: ObjectPlan, support: Support, gripper: GripperModel, collide
     # torus: 120 kept found no hand-over, all 500 found both, for 0.6 s more)
     free_params = replace(params.sampler, full_circle=True, max_keep=params.sampler.n_candidates)
     plan.free_grasps, _ = sample_grasps(closed, support, gripper, collider, SceneOctree(np.zeros((0, 3))), free_params)
-    plan.handover, plan.stats["handover"] = plan_handover(plan.geometry, support, plan.reach["primary"], plan.free_grasps,
-                                                          arms, collider, check, params.handover_params)
+    # the giver holds the object where it leaves the receiver room, not where a single-arm pick is best
+    givers, clear = handover_givers(plan.grasps, plan.free_grasps, plan.reach["primary"], arms["primary"], collider,
+                                    params.handover_params)
+    plan.handover, plan.stats["handover"] = plan_handover(plan.geometry, support, givers, plan.free_grasps,
+                                                          arms, collider, check, params.handover_params, clear,
+                                                          obstacles_b1, closed.points)
+    plan.stats["handover"]["givers"] = {"reachable": len(givers), "tried": givers.tried, "why_not": givers.reasons}
     if plan.handover is None:
         plan.notes.append("no hand-over found: no transfer pose where the primary holds it and the secondary"
                           " reaches a grasp clear of the primary's fingers")

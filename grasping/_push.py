@@ -29,6 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bimanual_app.geometry import dominant_plane_offset
+
 from ._antipodal import GraspSet
 from ._collision import GripperCollider, SceneOctree
 from ._gripper import GripperModel
@@ -44,7 +46,10 @@ class PushParams:
     rolls: turns of the gripper about its approach (the closed pad is symmetric; for the arm's reach).
     heights: contact heights above the box centre, as fractions of the box's half height (above the centre:
         the object hangs below the squeeze line; higher is easier to reach for an arm on the table).
-    tilts: approach tilts down from horizontal (radians; negative: pointing slightly up).
+    tilts: approach tilts down from horizontal (radians; negative: pointing slightly up). The steepest (88
+        degrees: the fingers hang beside the face and press it with their sides) is what a Piper reaches
+        closest to its own base: on a bench scene it reached a face 14.5 cm from its base 18 times in 48,
+        against 2 at 80 degrees.
     swivels: approach turns about the vertical away from the face normal (radians): an arm beside the face
         rather than in front of it reaches it turned; the squeeze stays along the face normal.
     press: how far past the face the fingertips are driven to squeeze (the grasp's ``depth`` is -press).
@@ -61,7 +66,7 @@ class PushParams:
     rolls: tuple[float, ...] = (0.0, np.pi / 2, np.pi / 4, -np.pi / 4)
     heights: tuple[float, ...] = (0.3, 0.1, 0.5, 0.7)
     tilts: tuple[float, ...] = (np.deg2rad(-15.0), 0.0, np.deg2rad(20.0), np.deg2rad(40.0), np.deg2rad(55.0),
-                                np.deg2rad(70.0), np.deg2rad(80.0))
+                                np.deg2rad(70.0), np.deg2rad(80.0), np.deg2rad(88.0))
     swivels: tuple[float, ...] = (0.0, np.deg2rad(25.0), np.deg2rad(-25.0))
     press: float = 0.008
     standoff: float = 0.006
@@ -117,9 +122,12 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
             if near_face.sum() < 2 * params.min_pad_points:
                 continue  # a face the cameras did not see: no blind pushes
             st["faces_seen"] += 1
-            # the face's depth from its own points (normals along n), not from the sides' edge points near it
-            own_face = near_face & (N @ n > 0.7)
-            face_off = float(np.median(along[own_face])) if own_face.sum() >= params.min_pad_points \
+            # the face's depth from its own points (normals along n), not from the sides' edge points near
+            # it; and the most populated such plane in the object's outer half, not the outermost: a small
+            # object touching the face and merged into the segment stands in front of part of it (the
+            # fingertips then land on the face beside it, where the approach is free of it)
+            own_face = (along > 0.0) & (np.abs(lat) < 0.5 * ext[1 - axis]) & (N @ n > 0.7)
+            face_off = dominant_plane_offset(along[own_face]) if own_face.sum() >= params.min_pad_points \
                 else float(np.percentile(along[near_face], 90))
             on_face = np.abs(along - face_off) < params.pad_depth
             obs = geo.observed

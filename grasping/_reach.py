@@ -13,8 +13,8 @@ when
   (up to ``n_solutions`` branches are tried for what follows),
   trying the grasp and the same grasp turned 180 degrees about the approach axis (a parallel gripper is
   symmetric; the wrist's joint limits often allow only one of them) -- ``ReachResult.flipped`` says which;
-- the pre-grasp, ``pregrasp`` metres back along the approach (or ``retreat``), and two points between,
-  are reached by IK
+- the pre-grasp, ``pregrasp`` metres back along the approach (or ``retreat``), and points at most 2 cm
+  apart between, are reached by IK
   seeded from the grasp's solution, each step moving no joint more than ``max_step`` radians (a straight
   approach the arm can follow, not a jump to another IK branch);
 - the grasp, the pre-grasp and the points between are free of collisions with the scene map (object
@@ -162,6 +162,33 @@ class ArmReach:
             d.append(self._pose_map.query(f, k=1)[0])
         return np.minimum(*d)
 
+    def follow(self, T_b_g: np.ndarray, q: np.ndarray, direction_b: np.ndarray, distance: float) -> str:
+        """'' when the arm carries its gripper from ``T_b_g`` (4, 4; joints ``q`` (J,)) ``distance`` metres along
+        ``direction_b`` (3,; base frame) in a straight line, orientation kept (IK seeded step by step, no
+        joint jump), else why not. Kinematics only: what the gripper carries is the caller's to check.
+
+        Steps of at most 2 cm: near the wrist singularity (joint 5 near 0) joints 4 and 6 trade large
+        opposite turns over a few centimetres, which coarser steps would take for a jump between branches."""
+        prev = np.asarray(q, dtype=np.float64)
+        n = max(3, int(np.ceil(distance / 0.02)))
+        for s in np.arange(1, n + 1) / n:
+            res = self.solver.solve(pregrasp_pose(T_b_g, s * distance, np.asarray(direction_b, dtype=np.float64)),
+                                    q_current=prev, max_seeds=4)
+            if not res.success:
+                return f"{s * distance * 100:.0f} cm along: {res.message.split(' (best')[0]}"
+            if np.max(np.abs(res.q - prev)) > self.max_step:
+                return f"{s * distance * 100:.0f} cm along: a jump between IK branches"
+            prev = res.q
+        return ""
+
+    def with_pregrasp(self, pregrasp: float) -> "ArmReach":
+        """The same filter (solver and scene map shared) checking pre-grasps ``pregrasp`` metres back."""
+        import copy
+
+        other = copy.copy(self)
+        other.pregrasp = float(pregrasp)
+        return other
+
     def for_scene(self, points_b1: np.ndarray) -> "ArmReach":
         """The same filter with another scene map (points (N, 3) in b1); shares the IK solver."""
         return ArmReach(self.robot, self.gripper, self.T_b1_b, points_b1, self.pregrasp, self.margin,
@@ -173,7 +200,8 @@ class ArmReach:
         """IK along the straight approach from the grasp back to the pre-grasp, seeded step by step."""
         qs = []
         prev = q
-        for s in (1 / 3, 2 / 3, 1.0):
+        n = max(3, int(np.ceil(self.pregrasp / 0.02)))  # 2 cm steps: see ``follow`` (the wrist singularity)
+        for s in np.arange(1, n + 1) / n:
             res = self.solver.solve(pregrasp_pose(T, s * self.pregrasp, retreat), q_current=prev, max_seeds=4)
             if not res.success:
                 return None, qs, f"pre-grasp {s * self.pregrasp * 100:.0f} cm back: {res.message}"

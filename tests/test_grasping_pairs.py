@@ -76,7 +76,7 @@ def test_handover_fingers_apart():
     g = load_gripper()
     col = GripperCollider(g)
     # the giver holds the object where it picked it: its grasp moved with the object
-    G_pick = op.reach["primary"].grasps.T_b1_g[h.giver_index]
+    G_pick = h.givers.grasps.T_b1_g[h.giver_index]
     moved = h.T_move @ G_pick
     flipped = moved @ np.diag([-1.0, -1.0, 1.0, 1.0])
     assert np.allclose(h.giver_T_b1_g, moved, atol=1e-9) or np.allclose(h.giver_T_b1_g, flipped, atol=1e-9)
@@ -91,3 +91,48 @@ def test_handover_fingers_apart():
     rel = h.T_move[:3, :3].T @ (c - h.centre)
     box = op.geometry.T_b1_box[:3, :3].T @ rel
     assert np.all(np.abs(box) <= op.geometry.extent / 2 + 0.005)
+
+
+def test_handover_giver_leaves_the_receiver_room():
+    """The giver is not the best single-arm pick (centred, deep): of the pick grasps, the first giver tried
+    is one that leaves the most free-space receiver grasps clear of its fingers."""
+    from grasping._handover import _clear_receivers
+
+    P, L = make_cloud([Obj("box", (0.3, 0.2), (0.05, 0.06, 0.07), 0.3)])
+    plan = plan_grasps(scene_cloud(P, L), arms=accept_all_arms(T12), T_b1_b2=T12, params=PlanParams(retry_factor=1))
+    op = plan.objects[0]
+    assert op.handover is not None, op.notes
+    col = GripperCollider(load_gripper())
+    gap = plan.params.handover_params.gap
+    n = np.array([len(_clear_receivers(col, op.grasps.T_b1_g[i], op.grasps.width[i], op.grasps.contact_width[i],
+                                       op.free_grasps, gap)) for i in range(len(op.grasps))])
+    givers = op.handover.givers
+    assert len(givers) and np.all(n[givers.index] > 0)
+    cap = plan.params.handover_params.enough_clear
+    assert min(n[givers.index[0]], cap) == min(n.max(), cap)
+    assert op.handover.tried["clear_receivers"] > 0
+    # the receiver's grasp is one of those the giver leaves clear
+    assert op.handover.receiver["index"] in _clear_receivers(col, op.grasps.T_b1_g[givers.index[op.handover.giver_index]],
+                                                             op.grasps.width[givers.index[op.handover.giver_index]],
+                                                             op.grasps.contact_width[givers.index[op.handover.giver_index]],
+                                                             op.free_grasps, gap)
+    # and the object rises at least min_rise above where it lay
+    assert op.handover.centre[2] - op.geometry.centre[2] >= plan.params.handover_params.min_rise - 1e-6
+
+
+def test_handover_transfer_pose_keeps_the_object_clear_of_the_scene():
+    """A tall box stands right where the transfer pose would be by preference (above the middle of the
+    line between the bases): the hand-over moves the object elsewhere, clear of it by the clearance."""
+    from scipy.spatial import cKDTree
+
+    P, L = make_cloud([Obj("cylinder", (0.3, 0.2), (0.05, 0.05, 0.11)),
+                       Obj("box", (0.3, 0.0), (0.12, 0.12, 0.30), 0.0)], table_size=(0.8, 0.8))
+    plan = plan_grasps(scene_cloud(P, L), arms=accept_all_arms(T12), T_b1_b2=T12, params=PlanParams(retry_factor=1),
+                       objects=[0])
+    op = plan.objects[0]
+    h = op.handover
+    assert h is not None, op.notes
+    assert h.tried["object_in_scene"] > 0  # the preferred poses were refused
+    moved = P[L == 0] @ h.T_move[:3, :3].T + h.T_move[:3, 3]
+    d, _ = cKDTree(P[L != 0]).query(moved)
+    assert d.min() >= plan.params.handover_params.object_clearance - 0.005  # (the check uses the closed geometry)

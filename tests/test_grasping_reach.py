@@ -60,3 +60,31 @@ def test_wrist_limit_uses_the_turned_grasp(reach):
             assert np.allclose(robot.fk_link(res.q[0], robot.tcp_link), T_used, atol=1e-3)
             assert np.allclose(rotate_about_approach(rotate_about_approach(T)), T)
     assert all(oks)
+
+
+def test_follow_a_straight_lift_and_the_lifting_filter(reach):
+    """``follow`` carries a reached grasp along a straight line (orientation kept) or says why not; the
+    lifting filter keeps only grasps the arm can also lift."""
+    from grasping import Arm
+    from grasping._arms import LiftingReach, lifting_arm
+
+    robot, f = reach
+    T = _tilted()
+    res = f(T[None])
+    assert res.ok[0]
+    T_used = rotate_about_approach(T) if res.flipped[0] else T
+    assert f.follow(T_used, res.q[0], np.array([0.0, 0.0, 1.0]), 0.12) == ""
+    # carried 40 cm further out it leaves the arm's reach (0.63 m)
+    why = f.follow(T_used, res.q[0], np.array([1.0, 0.0, 0.0]), 0.40)
+    assert why and "cm along" in why
+    lift = LiftingReach(f, np.array([0.0, 0.0, 1.0]), 0.12)
+    assert lift(T[None]).ok[0]
+    out = LiftingReach(f, np.array([1.0, 0.0, 0.0]), 0.40)(T[None])
+    assert not out.ok[0] and "cannot lift it 40 cm" in out.reason[0]
+    assert lift.prior is f.prior or callable(lift.prior)  # the wrapped filter's prior stays available
+    # a plain callable filter cannot follow a line: no lifting arm
+    from grasping import callable_filter
+
+    plain = Arm("primary", np.eye(4), callable_filter(lambda Ts: np.ones(len(Ts), dtype=bool)))
+    assert lifting_arm(plain, np.array([0.0, 0.0, 1.0]), 0.12) is None
+    assert isinstance(lifting_arm(Arm("primary", np.eye(4), f), np.array([0.0, 0.0, 1.0]), 0.12).reach, LiftingReach)

@@ -147,3 +147,46 @@ def test_box_from_faces_ignores_a_neighbour_bleeding_into_the_segment():
     assert np.max(np.abs(np.sort(enclosing.size) - np.sort(size))) > 0.02
     _, b_cyl = box_from_faces(cyl, np.array([0.0, 0.0, 1.0]), table)
     assert b_cyl < 0.6  # a cylinder is not box-like
+
+
+def test_dominant_plane_offset_is_the_fullest_plane_not_the_outermost_or_the_median():
+    from bimanual_app.geometry import dominant_plane_offset
+
+    rng = np.random.default_rng(0)
+    face = rng.normal(0.09, 0.001, 400)  # a box face 9 cm from the centre, seen at a grazing angle
+    front = rng.normal(0.135, 0.001, 350)  # a small box merged into the segment, standing 4.5 cm in front
+    sides = rng.uniform(0.09, 0.135, 250)  # its sides, between
+    d = np.concatenate([face, front, sides])
+    assert abs(dominant_plane_offset(d) - 0.09) < 0.002
+    assert np.median(d) > 0.095 and np.percentile(d, 90) > 0.13  # what a median or percentile would give
+    with pytest.raises(ValueError):
+        dominant_plane_offset(np.array([]))
+
+
+def test_long_box_keeps_its_end_faces_and_ignores_a_small_box_merged_into_it():
+    """A 35 x 18 cm carton with a 4 x 4 cm box touching its long face, segmented as one object: the body
+    the preview simulates has the carton's size (trimming 2 % of the points along its length would cut its
+    small end faces away; the median of the long face's points would move towards the small box's front)."""
+    size = np.array([0.354, 0.181, 0.088])
+    rng = np.random.default_rng(7)
+
+    def by_area(c, s, n):  # points spread evenly over the visible faces (as a camera sees them), 1 mm noise
+        s = np.asarray(s, float)
+        faces = [(2, +1), (0, -1), (0, +1), (1, -1), (1, +1)]
+        area = np.array([np.prod(np.delete(s, ax)) for ax, _ in faces])
+        k = rng.choice(len(faces), n, p=area / area.sum())
+        u = rng.uniform(-0.5, 0.5, (n, 3)) * s
+        for i, (ax, sign) in enumerate(faces):
+            u[k == i, ax] = sign * s[ax] / 2
+        return np.asarray(c) + u + rng.normal(scale=0.001, size=(n, 3))
+
+    carton = by_area([0.39, -0.03, 0.044], size, 12000)
+    # the end face towards x- seen at a grazing angle: a tenth of its points
+    end = np.isclose(carton[:, 0], 0.39 - size[0] / 2, atol=0.004)
+    carton = carton[~end | (rng.uniform(size=len(carton)) < 0.1)]
+    small = by_area([0.39, -0.03 - 0.0905 - 0.021, 0.025], [0.042, 0.042, 0.05], 500)
+    pts = np.vstack([carton, small])
+    sh = shape_from_points(pts, table_from_plane([0, 0, 1], 0.0), kind="auto")
+    assert sh.kind == "box"
+    assert np.allclose(np.sort(sh.size), np.sort(size), atol=0.008), sh.size
+    assert np.allclose(sh.T_b1_o[:2, 3], [0.39, -0.03], atol=0.006)
