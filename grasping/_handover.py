@@ -200,8 +200,8 @@ def handover_givers(picks: GraspSet, free: GraspSet, reached: ArmGrasps, prim: A
 
     A centred, deep pick (what the single-arm ranking prefers) covers a small object with the giver's fingers
     and leaves the receiver nothing; so every collision-free pick grasp of ``picks`` is ranked by how many
-    receiver grasps it leaves clear (up to ``params.enough_clear``, then by score), and the first ``params.givers`` the
-    primary reaches are returned: those already in ``reached`` (its reachable pick grasps) as they are,
+    receiver grasps it leaves clear (up to ``params.enough_clear``, then by score), and the first
+    ``params.givers`` the primary reaches are returned: those already in ``reached`` (its reachable pick grasps) as they are,
     the others through its reach filter (at most ``params.giver_tries`` checks).
     """
     clear = [_clear_receivers(collider, picks.T_b1_g[i], float(picks.width[i]), float(picks.contact_width[i]),

@@ -29,8 +29,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bimanual_app.geometry import dominant_plane_offset
-
 from ._antipodal import GraspSet
 from ._collision import GripperCollider, SceneOctree
 from ._gripper import GripperModel
@@ -122,12 +120,9 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
             if near_face.sum() < 2 * params.min_pad_points:
                 continue  # a face the cameras did not see: no blind pushes
             st["faces_seen"] += 1
-            # the face's depth from its own points (normals along n), not from the sides' edge points near
-            # it; and the most populated such plane in the object's outer half, not the outermost: a small
-            # object touching the face and merged into the segment stands in front of part of it (the
-            # fingertips then land on the face beside it, where the approach is free of it)
-            own_face = (along > 0.0) & (np.abs(lat) < 0.5 * ext[1 - axis]) & (N @ n > 0.7)
-            face_off = dominant_plane_offset(along[own_face]) if own_face.sum() >= params.min_pad_points \
+            # the face's depth from its own points (normals along n), not from the sides' edge points near it
+            own_face = near_face & (N @ n > 0.7)
+            face_off = float(np.median(along[own_face])) if own_face.sum() >= params.min_pad_points \
                 else float(np.percentile(along[near_face], 90))
             on_face = np.abs(along - face_off) < params.pad_depth
             obs = geo.observed

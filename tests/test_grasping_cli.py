@@ -66,3 +66,16 @@ def test_cli_rejects_segments_of_another_cloud(tmp_path, run_dir, capsys):
     assert rc == 1
     assert "does not belong to this cloud" in capsys.readouterr().err
     assert not (tmp_path / "out" / "grasps.json").exists()
+
+
+def test_cli_says_why_a_wide_object_has_no_two_arm_grasp(tmp_path, capsys):
+    """A box too wide for one gripper, out of both arms' reach: the stage fails, and says both that it
+    needs two arms and that no two-arm grasp was found (not only the first)."""
+    P, L = make_cloud([Obj("box", (0.30, 0.75), (0.16, 0.30, 0.10), 0.0)], table_size=(0.8, 1.8))
+    _, seg, _ = write_inputs(tmp_path / "in", P, L, T12)
+    rc = main(["grasp", str(tmp_path / "in"), "--segments", str(seg), "--out", str(tmp_path / "out"), "--quiet",
+               "--no-handover"])
+    assert rc == 1
+    err = capsys.readouterr().err
+    assert "wider than the gripper's stroke" in err and "no balanced two-arm grasp" in err
+    assert not (tmp_path / "out" / "grasps.json").exists()

@@ -22,7 +22,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bimanual_app.geometry import dominant_plane_offset
 from bimanual_app.transforms import check_shape, make_T
 
 __all__ = ["TablePlane", "BodyShape", "fit_table", "table_from_plane", "shape_from_points", "box_shape",
@@ -275,6 +274,7 @@ def shape_from_points(points: np.ndarray, table: TablePlane | None = None, kind:
     p_faces = p
     if trim:
         p = trim_outer(p, up)
+    p_seen = p
     if table is not None:
         h = table.height(p)
         p = p[h > -0.01]  # points below the table top are noise
@@ -312,8 +312,11 @@ def shape_from_points(points: np.ndarray, table: TablePlane | None = None, kind:
             faces[i] = f[[0, 2, 1]]
     size = local.max(0) - local.min(0)
     if kind == "auto":  # box-like objects as their box: planar faces and a flat top, not noisy facets
-        box, boxness = box_from_faces(p_faces, up, table, density=density)
-        if box is not None and boxness >= BOXNESS:  # clean faces: the box fitted to them
+        # box-like or not from the trimmed points (the spread layers of a fused cloud blur the normals); the
+        # faces from all of them
+        _, boxness = box_from_faces(p_seen, up, table, density=density)
+        box = box_from_faces(p_faces, up, table, density=density)[0] if boxness >= BOXNESS else None
+        if box is not None:  # clean faces: the box fitted to them
             return box
         box = box_shape_from_points(p, up, density)  # noisy normals: the enclosing box, if the hull fills it
         if hull.volume >= BOX_FILL * box.volume:
@@ -340,11 +343,9 @@ def box_from_faces(points: np.ndarray, up: np.ndarray, table: TablePlane | None 
     neighbour's surface that bled into the segment, a view registered a little off): a few percent of
     points on one side turn and widen it by centimetres. Here the yaw is the dominant direction (mod 90
     degrees) of the vertical surfaces' normals (local plane fits over ``k`` neighbours), and each face sits
-    on the most populated plane (``dominant_plane_offset``) of the points whose normal points that way -- a
-    bleed cluster with normals of its own moves neither, and a small neighbour merged into the segment,
-    whose sides point the same way as the face, does not pull it in (the grasping stage places its push
-    contacts on the same planes). A side no camera saw falls back to the 99.5th percentile of the points along it; the top
-    is the 98th percentile of height, the bottom the table (or the lowest point).
+    at the median of the points whose normal points that way -- a bleed cluster with normals of its own
+    moves neither. A side no camera saw falls back to the 99.5th percentile of the points
+    along it; the top is the 98th percentile of height, the bottom the table (or the lowest point).
 
     Args:
         points: (N,3) the object's points in b1 (not extruded).
@@ -386,7 +387,7 @@ def box_from_faces(points: np.ndarray, up: np.ndarray, table: TablePlane | None 
         for sgn in (1.0, -1.0):
             face = (nh @ (sgn * a)) > np.cos(np.deg2rad(25.0))
             if face.sum() >= max(20, 0.05 * len(nh)):  # a face, not a few stray normals
-                pos = dominant_plane_offset(sgn * proj[face]) * sgn
+                pos = float(np.median(proj[face]))
             else:  # a face no camera saw: the points' extent that way (its edges, on the faces beside it;
                 # outliers are gone, and a 2% tail would take 7 mm off a 35 cm box)
                 pos = float(np.percentile(proj_all, 99.5 if sgn > 0 else 0.5))
