@@ -85,8 +85,8 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
     ``depth`` holds -press; ``contact_width`` the object's width between this face and the opposite one;
     ``extra["face"]`` (n, 2) the box axis and side of the face; ``extra["squeeze"]`` (n, 3) the direction
     the gripper presses in (the face's inward normal, horizontal); ``extra["contact"]`` (n, 3) the point
-    midway between the fingertips' contacts with the face; ``extra["retreats"]`` (n, 2, 3) the two ways in
-    (unit directions from the contact to the pre-contact: along the face normal, along -z), NaN where that
+    midway between the fingertips' contacts with the face; ``extra["retreats"]`` (n, 3, 3) the three ways in
+    (unit directions from the contact to the pre-contact: along the face normal, along -z, up), NaN where that
     way is blocked. ``stats`` (a dict) receives counts of the
     candidates dropped at each check.
     """
@@ -204,9 +204,11 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
     wv = np.full(len(T), w)
     own = SceneOctree(P, 0.002)
     # the way in, from the pre-contact: back along the face normal, or back along the approach axis (from
-    # above, for a tilted gripper); each is checked at the contact (held off) and at points back to the
+    # above, for a tilted gripper), or straight up; each is checked at the contact (held off) and at points back to the
     # pre-contact, and kept when free: the arm's reach filter may use either
-    retreats = np.stack([nrm, -T[:, :3, 2]], axis=1)  # (n, 2, 3)
+    # ... or straight down from above: an arm near the face's own base reaches the contact with a steep
+    # gripper but not a pre-contact 9 cm back towards its base
+    retreats = np.stack([nrm, -T[:, :3, 2], np.broadcast_to(up, nrm.shape)], axis=1)  # (n, 3, 3)
     path_ok = np.zeros((len(T), retreats.shape[1]), dtype=bool)
     hit_obj = np.zeros(len(T), dtype=bool)
     for r in range(retreats.shape[1]):

@@ -136,3 +136,30 @@ def test_handover_transfer_pose_keeps_the_object_clear_of_the_scene():
     moved = P[L == 0] @ h.T_move[:3, :3].T + h.T_move[:3, 3]
     d, _ = cKDTree(P[L != 0]).query(moved)
     assert d.min() >= plan.params.handover_params.object_clearance - 0.005  # (the check uses the closed geometry)
+
+
+def test_push_contacts_can_be_reached_from_straight_above():
+    """Each push contact has three ways in (along the face normal, back along its approach, straight down
+    from above), each kept only where its sweep is free; an arm that can come in only from above still
+    gets contacts, and the way it used is the one recorded."""
+    from grasping import Arm, ReachResult, reachable_grasps
+
+    P, L = make_cloud([Obj("box", (0.3, 0.0), (0.16, 0.32, 0.10), 0.1)], table_size=(0.8, 0.8))
+    plan = plan_grasps(scene_cloud(P, L), arms=accept_all_arms(T12), T_b1_b2=T12,
+                       params=PlanParams(handover=False, retry_factor=1))
+    op = plan.objects[0]
+    push = op.push
+    R = push.extra["retreats"]
+    assert R.shape == (len(push), 3, 3)
+    up = np.array([0.0, 0.0, 1.0])
+    finite = np.isfinite(R[:, 2]).all(axis=1)
+    assert finite.any() and np.allclose(R[finite, 2], up)
+
+    def from_above_only(T_b_g, width=None, retreat=None):
+        n = len(T_b_g)
+        ok = np.zeros(n, bool) if retreat is None else np.asarray(retreat)[:, 2] > 0.99
+        return ReachResult(ok, np.zeros((n, 6)), np.zeros((n, 6)), np.zeros(n, bool), [""] * n)
+
+    ag = reachable_grasps(push, Arm("primary", np.eye(4), from_above_only), max_tries=len(push), want=5)
+    assert len(ag) >= 5  # (checked in batches of 8)
+    assert np.allclose(ag.grasps.extra["retreat"], up)
