@@ -36,9 +36,12 @@ def _images(folder, n, seed=0):
     return arrays
 
 
-def _args(poses, out, ch, cam, arm="primary", execute=True):
+def _args(poses, out, ch, cam, arm="primary", execute=True, feedback_timeout="1.0"):
+    # the simulated arm shares this process (and, on CI, two cores) with the capture: a 1 s feedback limit
+    # keeps a scheduling hiccup from reading as a dead link; the timeout itself is tested in
+    # test_hardware_backend.py and below
     a = ["capture", "--arm", arm, "--poses", str(poses), "--out", str(out), "--can", ch,
-         "--can-interface", "virtual", "--camera", str(cam)]
+         "--can-interface", "virtual", "--camera", str(cam), "--feedback-timeout", feedback_timeout]
     return a + (["--execute", "hardware"] if execute else [])
 
 
@@ -115,7 +118,7 @@ def test_arm_that_stops_answering_mid_capture_is_stopped_and_nothing_is_written(
     ch = new_channel()
     # about 100 joint commands: the first pose is reached and captured, the arm goes silent on the way
     with SimPiper(ch, q0=Q_READY, silent_after_joint_cmds=130) as sim:
-        rc = cli_main(_args(poses, scene, ch, tmp_path / "cam"))
+        rc = cli_main(_args(poses, scene, ch, tmp_path / "cam", feedback_timeout="0.25"))
         t_stop = sim.estop_time()
         assert t_stop is not None and sim.estopped
         time.sleep(0.03)
@@ -199,3 +202,13 @@ def test_missing_can_interface_is_a_clear_error(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 1 and "can_nosuch" in err and "does not exist" in err and "ip link set can_nosuch up" in err
     assert not (tmp_path / "scene" / "primary").exists()
+
+
+def test_feedback_timeout_out_of_range_is_refused_before_connecting(tmp_path, capsys):
+    poses = _poses_yaml(tmp_path / "poses.yaml")
+    args = _args(poses, tmp_path / "scene", "vnone", tmp_path / "cam")
+    args[args.index("--feedback-timeout") + 1] = "5"
+    assert cli_main(args) == 1
+    err = capsys.readouterr().err
+    assert "--feedback-timeout" in err and "feedback_timeout_s" in err and "[0.02, 1.0]" in err
+    assert not (tmp_path / "scene").exists()

@@ -33,6 +33,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(stand-in: serves the files in name order)")
     p.add_argument("--camera-size", metavar="WxH", help="request this frame size from the camera, e.g. 640x480")
     p.add_argument("--speed", type=float, help="override the poses file's speed (fraction of allowed joint speeds)")
+    p.add_argument("--feedback-timeout", type=float, default=0.25, metavar="S",
+                   help="stop the arm when its joint feedback is older than S seconds (default 0.25, at most 1.0; "
+                        "raise it only for a busy PC or a slow USB-CAN adapter)")
     p.add_argument("--execute", choices=["hardware"],
                    help="actually move the arm: '--execute hardware'. Without it, a dry run")
     p.add_argument("--suggest", action="store_true", help="print suggested capture poses (YAML) and exit")
@@ -116,6 +119,10 @@ def run(args) -> int:
                for k in ("poses", "out") if not getattr(args, k)]
     if missing:
         raise InputError(missing)
+    if not 0.02 <= args.feedback_timeout <= 1.0:
+        raise InputError(Problem("--feedback-timeout", "feedback_timeout_s",
+                                 f"must be in [0.02, 1.0] s, got {args.feedback_timeout:g}",
+                                 "leave it at 0.25 (the Piper sends joint feedback at 200 Hz)"))
     plan = plan_capture(args.poses, args.out, args.arm, speed=args.speed)
     for line in plan.lines:
         print(line)
@@ -137,7 +144,10 @@ def run(args) -> int:
         print(f"connecting to the {args.arm} arm on {args.can} ({args.can_interface}); camera: {camera.description}",
               file=sys.stderr)
         arm.connect()
-        result = capture_scene(plan, arm, camera)
+        from ._executor import ExecutionConfig
+
+        config = ExecutionConfig(settle_tol_rad=0.01, feedback_timeout_s=args.feedback_timeout)
+        result = capture_scene(plan, arm, camera, config=config)
     except HardwareError as e:
         print(f"bijcr capture: failed: {e}", file=sys.stderr)
         print("nothing was written to the scene folder.", file=sys.stderr)
