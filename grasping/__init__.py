@@ -8,7 +8,7 @@ Public API:
     sample_grasps(geo, support, gripper, collider, others, params) -> (GraspSet, stats)
     ArmReach / ReachResult / ReachFilter               pluggable reachability: T_b_g (N,4,4) -> mask + joints
     callable_filter(predicate)                          a reach filter from a plain predicate on poses (tests)
-    scene_cloud(points, labels) / load_cloud / load_segments / load_calibration / resolve_inputs
+    scene_cloud(points, labels) / load_cloud / load_segments / load_calibration / b2b_sigma / resolve_inputs
     write_grasps_json(path, plan) / plan_to_dict(plan) / draw_plan(path, plan, points, labels)
     rotate_about_approach(T_b_g)                        the same grasp turned 180 degrees about z
 CLI: ``bijcr grasp SCENE_DIR_OR_CLOUD --segments DIR/segments.npz --out DIR [--calibration calibration.json]``.
@@ -19,7 +19,7 @@ from ._arms import Arm, ArmGrasps, TwoArmCheck, make_arms, reachable_grasps
 from ._collision import GripperCollider, SceneOctree, grippers_collide, grippers_distance
 from ._gripper import GripperModel, GripperShape, load_gripper
 from ._handover import Handover, HandoverParams
-from ._inputs import SceneCloud, load_calibration, load_cloud, load_segments, resolve_inputs, scene_cloud
+from ._inputs import SceneCloud, b2b_sigma, load_calibration, load_cloud, load_segments, resolve_inputs, scene_cloud
 from ._joint import JointPair
 from ._objects import ObjectGeometry, Support, check_graspable, estimate_support, object_geometry
 from ._output import draw_plan, plan_to_dict, write_grasps_json
@@ -35,7 +35,7 @@ __all__ = [
     "make_arms", "Arm", "ArmGrasps", "reachable_grasps", "TwoArmCheck",
     "ArmReach", "ReachFilter", "ReachResult", "callable_filter", "pregrasp_pose",
     "GripperCollider", "SceneOctree", "grippers_collide", "grippers_distance",
-    "SceneCloud", "scene_cloud", "load_cloud", "load_segments", "load_calibration", "resolve_inputs",
+    "SceneCloud", "scene_cloud", "load_cloud", "load_segments", "load_calibration", "b2b_sigma", "resolve_inputs",
     "ObjectGeometry", "Support", "estimate_support", "object_geometry", "check_graspable",
     "plan_to_dict", "write_grasps_json", "draw_plan",
 ]

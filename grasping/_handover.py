@@ -37,7 +37,7 @@ from ._arms import Arm, ArmGrasps, TwoArmCheck, reachable_grasps
 from ._collision import GripperCollider, grippers_collide, grippers_distance
 from ._objects import ObjectGeometry, Support
 
-__all__ = ["HandoverParams", "Handover", "handover_givers", "plan_handover"]
+__all__ = ["HandoverParams", "Handover", "handover_givers", "plan_handover", "catch_probability"]
 
 
 @dataclass(frozen=True)
@@ -65,6 +65,15 @@ class HandoverParams:
     per transfer pose. prior_cut: (giver, transfer pose) candidates whose giver pose or best receiver pose
     the arm is predicted not to reach (see ``ArmReach.prior``) are skipped. max_transfer_checks: candidates
     checked exactly (IK), cheapest predicted first.
+    receiver_clearance: how far the receiver's fingers open past the object on each side (within the stroke;
+        a pick opens 1 cm): at the transfer pose only the giver is near, and the spare opening is what absorbs
+        the calibration error below.
+    b2b_sigma_m, b2b_sigma_rad: 1-sigma error of the calibrated ``T_b1_b2`` (translation per axis, rotation)
+        (``bijcr grasp`` takes them from calibration.json's ``uncertainty``). The secondary's idea of where the
+        object is at the transfer pose is off by about ``sqrt(s_m^2 + (s_rad d)^2)`` along any axis, d = the
+        distance from its base; the receiver's open fingers catch it when that error along its closing axis
+        is under the margin ``(width - contact_width) / 2`` (see :func:`catch_probability`). Among receivers
+        the secondary is about as likely to reach, the ones more likely to catch go first.
     """
 
     heights: tuple[float, ...] = (0.12, 0.16, 0.20, 0.25)
@@ -83,6 +92,9 @@ class HandoverParams:
     receivers_checked: int = 6
     prior_cut: float = 0.10
     max_transfer_checks: int = 30
+    receiver_clearance: float = 0.025
+    b2b_sigma_m: float = 0.007
+    b2b_sigma_rad: float = 0.012
 
 
 @dataclass
@@ -98,7 +110,10 @@ class Handover:
     receiver: the receiver's grasp at the transfer pose: ``T_b1_g``, ``width``, ``contact_width``, ``score``,
         ``q``, ``q_pre``, ``index`` (in the free-space grasp set).
     gap: smallest distance between the two grippers when both hold the object (m).
-    score: mean of the two grasp scores.
+    score: mean of the two grasp scores times ``catch``.
+    catch: probability that the receiver's open fingers close around the object given the calibration
+        error (:func:`catch_probability`); margin: the receiver's opening past the object on each side (m);
+        sigma: the position error assumed at the transfer pose (1-sigma, m).
     """
 
     T_move: np.ndarray
@@ -111,7 +126,26 @@ class Handover:
     gap: float
     score: float
     tried: dict = field(default_factory=dict)
+    catch: float = 1.0
+    margin: float = 0.0
+    sigma: float = 0.0
     givers: ArmGrasps | None = None  # the giver candidates ``giver_index`` indexes (None: the primary's reach set)
+
+
+def catch_probability(margin: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Probability that a receiver whose fingers open ``margin`` (m, any shape) past the object on each side
+    closes around it when the object is off by a zero-mean normal error of ``sigma`` (m) along the closing
+    axis: ``P(|e| < margin) = erf(margin / (sigma sqrt 2))``."""
+    from scipy.special import erf
+
+    margin = np.maximum(np.asarray(margin, dtype=np.float64), 0.0)
+    return erf(margin / (np.sqrt(2.0) * np.maximum(np.asarray(sigma, dtype=np.float64), 1e-6)))
+
+
+def _transfer_sigma(p: HandoverParams, T_b1_b2: np.ndarray, points_b1: np.ndarray) -> np.ndarray:
+    """(K,) the secondary's position error (1-sigma, m) at ``points_b1`` (K, 3) from T_b1_b2's uncertainty."""
+    d = np.linalg.norm(np.asarray(points_b1, dtype=np.float64).reshape(-1, 3) - T_b1_b2[:3, 3], axis=1)
+    return np.sqrt(p.b2b_sigma_m ** 2 + (p.b2b_sigma_rad * d) ** 2)
 
 
 def _axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
@@ -303,8 +337,12 @@ def plan_handover(geo: ObjectGeometry, support: Support, giver: ArmGrasps, free:
                 continue
         Rt = move @ free.T_b1_g[clear]
         # the clear receivers the secondary is likely to reach, best score first within tiers of its prior
+        # and, within a tier, the more likely to catch the object despite the calibration error first
         tiers = np.digitize(_prior(sec, Rt), (0.05, 0.08, 0.12))
-        order = np.concatenate([np.nonzero(tiers == t)[0] for t in range(3)])[: params.receivers_checked]
+        margin = 0.5 * (free.width[clear] - free.contact_width[clear])
+        catch = catch_probability(margin, _transfer_sigma(params, sec.T_b1_b, Rt[:, :3, 3]))
+        order = np.concatenate([(lambda i: i[np.argsort(-np.round(catch[i], 1), kind="stable")])(np.nonzero(tiers == t)[0])
+                                for t in range(3)])[: params.receivers_checked]
         stats["receiver_candidates"] += len(order)
         if not len(order):
             continue
@@ -325,7 +363,9 @@ def plan_handover(geo: ObjectGeometry, support: Support, giver: ArmGrasps, free:
                         "depth": float(free.depth[k]), "score": float(free.score[k]),
                         "terms": {t: float(v[k]) for t, v in free.terms.items()},
                         "q": rr.q[n], "q_pre": rr.q_pre[n], "index": int(k)}
-            score = 0.5 * (float(giver.grasps.score[gi]) + float(free.score[k]))
+            c = float(catch[order[n]])
+            score = 0.5 * (float(giver.grasps.score[gi]) + float(free.score[k])) * c
             return Handover(move, move[:3, :3] @ geo.centre + move[:3, 3], gi, Gt, rg.q[0], w_closed, receiver,
-                            gap, score, dict(stats), giver), stats
+                            gap, score, dict(stats), c, float(margin[order[n]]),
+                            float(_transfer_sigma(params, sec.T_b1_b, R_used[:3, 3])[0]), giver), stats
     return None, stats

@@ -16,7 +16,7 @@ import numpy as np
 from bimanual_app.io_utils import InputError, Problem
 from bimanual_app.transforms import check_T
 
-__all__ = ["SceneCloud", "load_cloud", "load_segments", "load_calibration", "resolve_inputs", "scene_cloud"]
+__all__ = ["SceneCloud", "load_cloud", "load_segments", "load_calibration", "b2b_sigma", "resolve_inputs", "scene_cloud"]
 
 
 @dataclass
@@ -162,3 +162,19 @@ def resolve_inputs(scene_or_cloud: str | Path, calibration: str | Path | None = 
     if cal is None and (p.parent / "calibration.json").is_file():
         cal = p.parent / "calibration.json"
     return p, cal
+
+
+def b2b_sigma(cal: dict) -> tuple[float, float] | None:
+    """(translation m, rotation rad): the per-axis RMS of the 1-sigma uncertainty of ``T_b1_b2`` that
+    ``bijcr calibrate`` writes (``uncertainty.T_b1_b2.translation_mm`` and ``rotation_axes_deg``); None
+    when the calibration has none (e.g. written by another tool) or it is not finite."""
+    u = (cal.get("uncertainty") or {}).get("T_b1_b2") if isinstance(cal.get("uncertainty"), dict) else None
+    if not isinstance(u, dict):
+        return None
+    try:
+        t = np.asarray(u["translation_mm"], dtype=np.float64).reshape(3) * 1e-3
+        r = np.deg2rad(np.asarray(u["rotation_axes_deg"], dtype=np.float64).reshape(3))
+    except (KeyError, TypeError, ValueError):
+        return None
+    st, sr = float(np.sqrt(np.mean(t ** 2))), float(np.sqrt(np.mean(r ** 2)))
+    return (st, sr) if np.isfinite(st) and np.isfinite(sr) else None

@@ -104,6 +104,7 @@ def _object_dict(op: ObjectPlan, T_b1_b2: np.ndarray | None, arms_checked: bool)
             "object_centre_b1": h.centre,
             "gap": h.gap,
             "score": h.score,
+            "catch": {"probability": h.catch, "margin_m": h.margin, "position_sigma_m": h.sigma},
             "giver": {"arm": "primary", "grasp_rank": rank_of.get(int(giver.index[gi])),
                       "pick": {"T_b1_g": giver.grasps.T_b1_g[gi], "q": giver.q[gi], "q_pregrasp": giver.q_pre[gi],
                                "width": float(giver.grasps.width[gi])},

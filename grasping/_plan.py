@@ -325,7 +325,10 @@ def _handover(plan: ObjectPlan, support: Support, gripper: GripperModel, collide
     # every collision-free candidate, not only the best-scored: those cluster at the object's centre, where
     # the giver's fingers are, and the receiver needs grasps away from them (measured on the demo's mug and
     # torus: 120 kept found no hand-over, all 500 found both, for 0.6 s more)
-    free_params = replace(params.sampler, full_circle=True, max_keep=params.sampler.n_candidates)
+    # the receiver opens wider than a pick (``receiver_clearance`` past the object on each side, within the
+    # stroke): in the air nothing but the giver is near, and the spare opening absorbs the calibration error
+    free_params = replace(params.sampler, full_circle=True, max_keep=params.sampler.n_candidates,
+                          clearance=max(params.sampler.clearance, params.handover_params.receiver_clearance))
     plan.free_grasps, _ = sample_grasps(closed, support, gripper, collider, SceneOctree(np.zeros((0, 3))), free_params)
     # the giver holds the object where it leaves the receiver room, not where a single-arm pick is best
     givers, clear = handover_givers(plan.grasps, plan.free_grasps, plan.reach["primary"], arms["primary"], collider,

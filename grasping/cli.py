@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     from ._antipodal import SamplerParams
     from ._arms import make_arms
     from ._gripper import load_gripper
-    from ._inputs import load_calibration, load_cloud, load_segments, resolve_inputs, scene_cloud
+    from ._inputs import b2b_sigma, load_calibration, load_cloud, load_segments, resolve_inputs, scene_cloud
     from ._output import draw_plan, write_grasps_json
     from ._plan import PlanParams, plan_grasps
 
@@ -59,9 +59,10 @@ def run(args: argparse.Namespace) -> int:
     labels, seg_extra = load_segments(seg_path)
     cloud = scene_cloud(points, labels, colors, seg_extra.get("table_plane"),
                         {"cloud": str(cloud_path), "segments": str(seg_path)}, str(cloud_path), str(seg_path))
-    T_b1_b2 = None
+    T_b1_b2, sigma = None, None
     if cal_path is not None:
-        T_b1_b2 = load_calibration(cal_path)["T_b1_b2"]
+        cal = load_calibration(cal_path)
+        T_b1_b2, sigma = cal["T_b1_b2"], b2b_sigma(cal)
     else:
         log("no calibration.json: planning for the primary arm only (no joint grasps or hand-overs)")
     robot = load_robot(args.robot)
@@ -71,6 +72,10 @@ def run(args: argparse.Namespace) -> int:
     arms = make_arms(robot, gripper, T_b1_b2)
     params = PlanParams(sampler=replace(SamplerParams(), n_candidates=args.candidates, seed=args.seed),
                         handover=not args.no_handover)
+    if sigma is not None:  # hand-over receivers ranked by how likely they catch the object despite it
+        params = replace(params, handover_params=replace(params.handover_params, b2b_sigma_m=sigma[0],
+                                                         b2b_sigma_rad=sigma[1]))
+        log(f"base-to-base uncertainty (1 sigma, per axis): {sigma[0] * 1000:.1f} mm, {sigma[1] * 180 / 3.141592653589793:.2f} deg")
     plan = plan_grasps(cloud, gripper, arms, T_b1_b2, params, args.objects, log)
 
     usable = [op for op in plan.objects if (any(len(a) for a in op.reach.values()) or op.joint)]

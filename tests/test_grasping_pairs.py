@@ -163,3 +163,30 @@ def test_push_contacts_can_be_reached_from_straight_above():
     ag = reachable_grasps(push, Arm("primary", np.eye(4), from_above_only), max_tries=len(push), want=5)
     assert len(ag) >= 5  # (checked in batches of 8)
     assert np.allclose(ag.grasps.extra["retreat"], up)
+
+
+def test_catch_probability_and_the_calibration_uncertainty_it_uses():
+    from grasping import b2b_sigma
+    from grasping._handover import catch_probability
+
+    p = catch_probability(np.array([0.0, 0.005, 0.0196, 0.05]), 0.01)
+    assert p[0] == 0.0 and 0.35 < p[1] < 0.40 and abs(p[2] - 0.95) < 0.002 and p[3] > 0.999
+    assert np.all(np.diff(p) > 0)
+    cal = {"uncertainty": {"T_b1_b2": {"translation_mm": [3.0, 4.0, 12.0], "rotation_axes_deg": [1.0, 1.0, 1.0]}}}
+    st, sr = b2b_sigma(cal)
+    assert abs(st - np.sqrt((9 + 16 + 144) / 3) * 1e-3) < 1e-12 and abs(sr - np.deg2rad(1.0)) < 1e-12
+    assert b2b_sigma({}) is None and b2b_sigma({"uncertainty": {"T_b1_b2": {"translation_mm": "x"}}}) is None
+
+
+def test_handover_receiver_closes_across_the_side_that_leaves_it_most_margin():
+    """A 3 x 5.5 x 6 cm box: the receiver may close across 3 cm (2 cm of opening to spare on each side) or
+    5.5 cm (under 1 cm): with the calibration error it is far likelier to catch across the narrow side."""
+    P, L = make_cloud([Obj("box", (0.3, 0.1), (0.03, 0.055, 0.06), 0.0)])
+    plan = plan_grasps(scene_cloud(P, L), arms=accept_all_arms(T12), T_b1_b2=T12, params=PlanParams(retry_factor=1))
+    h = plan.objects[0].handover
+    assert h is not None, plan.objects[0].notes
+    assert h.receiver["contact_width"] < 0.04 and h.margin > 0.015 and h.catch > 0.9
+    assert abs(h.margin - 0.5 * (h.receiver["width"] - h.receiver["contact_width"])) < 1e-9
+    p = plan.params.handover_params
+    d = np.linalg.norm(h.receiver["T_b1_g"][:3, 3] - T12[:3, 3])
+    assert abs(h.sigma - np.hypot(p.b2b_sigma_m, p.b2b_sigma_rad * d)) < 1e-9

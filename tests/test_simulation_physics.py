@@ -139,3 +139,31 @@ def test_a_push_is_a_hold_of_the_gripper_not_of_both_fingers(robot):
         assert "primary" not in HoldMonitor(world, obj).sample().holders
     finally:
         world.close()
+
+
+def test_a_press_into_a_rigid_box_is_compliant_not_effort_limited(robot):
+    """A pushing gripper's contacts are compliant (PAD_STIFFNESS): pressing 1 cm into a box on the table gives
+    tens of newtons, as a position-controlled Piper would, not the hundreds its rigid joint motors could
+    push with (which drove fingertips over the top edge of cartons in two-arm squeezes)."""
+    from bimanual_app.simulation import box_shape
+
+    table = table_from_plane([0, 0, 1], 0.0)
+    box = box_shape(make_T(np.eye(3), [0.30, 0.0, 0.03]), [0.08, 0.08, 0.06], mass=0.5)
+    world, phys = build_world(robot, T_B1_B2, table, {0: box})
+    try:
+        obj = phys[0]
+        arm = world.arms["primary"]
+        down = grasp_R([0, 0, -1], [0, 1, 0])
+        q_above = ik(robot, make_T(down, [0.30, 0.0, 0.08]), SEED)
+        q_in = ik(robot, make_T(down, [0.30, 0.0, 0.05]), q_above)  # closed fingertips 1 cm into the top face
+        arm.reset(q_above, 0.0)
+        arm.set_push_compliance()
+        v, acc = _slow(robot)
+        world.run_plan({"primary": joint_move(q_above, q_in, v, acc)}, settle=0.5)
+        total = 0.0
+        for link in arm.gripper_links:
+            total += sum(c[9] for c in world.p.getContactPoints(arm.body, obj.body, linkIndexA=link,
+                                                               physicsClientId=world.cid))
+        assert 5.0 < total < 120.0, total
+    finally:
+        world.close()

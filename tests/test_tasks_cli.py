@@ -138,3 +138,42 @@ def test_no_plan_in_time_fails_cleanly_and_replaces_an_old_result(fixture_dirs, 
     assert rec["success"] is False and rec["failed_stage"] == "plan"
     assert "no path found within the 0.5 s limit" in rec["reason"]
     assert not (out / "preview.gif").exists()  # the stale animation of the old run is gone
+
+
+
+def test_push_pair_squeezes_lifts_and_lets_go_before_retreating(tmp_path, monkeypatch):
+    """A carton too wide for one gripper, planned through the real grasp stage: a push pair squeezes it,
+    lifts, holds and places it, then undoes the squeeze (release) before retreating; the preview in the
+    true world holds it."""
+    import open3d as o3d
+
+    from bimanual_app.io_utils import write_json
+    from bimanual_app.transforms import make_T
+    from tests._task_fixtures import _scene_folder, box_surface_points
+
+    monkeypatch.setenv("BIJCR_APPROVAL_KEY", "test-key")
+    box = {"centre": [0.30, 0.0, 0.05], "size": [0.16, 0.26, 0.10], "mass": 0.8}
+    truth = [{"id": 0, "kind": "box", "shape": "box", "T_b1_o": make_T(np.eye(3), box["centre"]),
+              "size": box["size"], "mass": box["mass"]}]
+    scene = tmp_path / "scene"
+    _, cal = _scene_folder(scene, name="carton", objects=truth)
+    rng = np.random.default_rng(0)
+    table = np.stack([rng.uniform(-0.15, 0.75, 8000), rng.uniform(-0.45, 0.45, 8000), rng.normal(0, 7e-4, 8000)], 1)
+    c, sz = np.asarray(box["centre"]), np.asarray(box["size"])
+    table = table[~np.all(np.abs(table[:, :2] - c[:2]) < sz[:2] / 2 + 0.003, axis=1)]
+    obj = box_surface_points(box["centre"], box["size"], 4000, seed=1, noise=7e-4)
+    work = tmp_path / "work"
+    (work / "calibration").mkdir(parents=True)
+    write_json(work / "calibration" / "calibration.json", cal)
+    o3d.io.write_point_cloud(str(work / "calibration" / "scene_b1.ply"),
+                             o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.vstack([table, obj]))))
+    (work / "segments").mkdir()
+    np.savez(work / "segments" / "segments.npz",
+             labels=np.r_[np.full(len(table), -1), np.zeros(len(obj), int)].astype(np.int32))
+    out = tmp_path / "push"
+    assert _run(["joint-grasp", scene, "--work", work, "--out", out, "--truth-objects"]) == 0
+    rec = json.loads((out / "task.json").read_text())
+    assert rec["success"] is True, rec["reason"]
+    names = [p["phase"] for p in rec["plans"]]
+    assert names == ["reach", "approach", "squeeze", "lift", "hold", "place", "release", "retreat"]
+    assert rec["preview"]["checks"]["hold"]["max_rise_m"] >= 0.10

@@ -19,13 +19,20 @@ from bimanual_app.transforms import T_from_xyz_quat, check_T, xyz_quat_from_T
 
 from ._bodies import BodyShape, TablePlane
 
-__all__ = ["SimArm", "SimObject", "PreviewWorld", "GRIP_FORCE", "FINGER_FRICTION", "OBJECT_FRICTION"]
+__all__ = ["SimArm", "SimObject", "PreviewWorld", "GRIP_FORCE", "FINGER_FRICTION", "OBJECT_FRICTION", "PAD_STIFFNESS"]
 
 GRIP_FORCE = 20.0  # N per finger while closing (the Piper gripper's rated grip is about 40 N in total)
 COUPLING_FORCE = 200.0  # N: the follower finger holds the mirror position of the driven one (see couple_fingers)
 FINGER_FRICTION = 1.0  # rubber pads; PyBullet multiplies the two bodies' coefficients
 OBJECT_FRICTION = 0.9
 TABLE_FRICTION = 0.6
+# Compliance of a pushing gripper's contacts (per contact point; a flat face touches at up to 4), see
+# SimArm.set_push_compliance. PyBullet's joint motors are rigid up to the URDF effort limits (100 N m), so a
+# two-arm squeeze commanded 8 mm into a rigid carton pressed it with 700-900 N: the arms sagged, a fingertip
+# rode up onto the top edge and pushed the carton into the table. A real position-controlled Piper yields
+# (servo and gear compliance); this stiffness stands in for that: the same press gives about 80 N in total.
+PAD_STIFFNESS = 1000.0  # N/m
+PAD_DAMPING = 50.0  # N s/m
 
 
 @dataclass
@@ -87,6 +94,19 @@ class SimArm:
         # the second finger's position as a multiple of the first's (-1: the two slide opposite ways)
         signs = robot.finger_q(1.0)
         self._mirror = float(signs[1] / signs[0]) if len(signs) == 2 and signs[0] != 0 and signs[1] != 0 else None
+
+    def set_push_compliance(self) -> None:
+        """Give the gripper's contacts the arm's compliance (``PAD_STIFFNESS``) from now on, for an arm that
+        holds by pushing (two grippers squeezing an object between them), where the arm's joints make the force.
+
+        A pinch leaves the contacts rigid: there the gripper's force-limited drive sets the grip force
+        whatever the arm's stiffness, and PyBullet's soft contacts let a pinched object slip (measured: a
+        hand-over's giver dropped a small box on the lift with soft pads, held it with rigid ones). One-way:
+        PyBullet has no call that makes a link's contacts rigid again.
+        """
+        for j in self.gripper_links:
+            self.p.changeDynamics(self.body, j, contactStiffness=PAD_STIFFNESS, contactDamping=PAD_DAMPING,
+                                  physicsClientId=self.cid)
 
     # ------------------------------------------------------------------ state
     def reset(self, q: np.ndarray, width: float = 0.0) -> None:

@@ -28,6 +28,7 @@ from ._plan import Phase, TaskPlan
 __all__ = ["plan_joint_grasp", "plan_handover", "object_lifts", "LIFT", "HOLD_S"]
 
 LIFT = 0.15  # m the joint grasp lifts the object (>= 10 cm needed)
+RETREAT_UP = 0.08  # m of the fallback retreats of a push pair (straight up, or further back from the faces)
 HANDOVER_LIFT = 0.06  # m straight up after the pick, before the free carry
 HANDOVER_LIFTS = (HANDOVER_LIFT, 0.10, 0.14, 0.04)  # tried in order: higher beside a taller neighbour
 HOLD_S = 2.3  # s of the checked hold (2 s needed)
@@ -285,10 +286,32 @@ def _joint_grasp(motion, choice, q_start, width_start, lift, up, at) -> TaskPlan
     at.append("retreat")
     q, _ = plan.end_state()
     if push:
+        # let go first: the squeeze undone (straight back out of the faces to where the fingertips first
+        # touched, the states the squeeze was checked through), so the fingertips stop pressing before the
+        # gripper moves along its approach (a tilted approach leaves upwards and, still pressing, would drag
+        # the object up with it)
+        U = {a: G[a].T_b1_g for a in arms}
         with motion.context("cut", openings=w_open):
-            tr = motion.cartesian({a: (S[a], pre[a]) for a in arms}, q)
+            tr = motion.cartesian({a: (S[a], U[a]) for a in arms}, q, min_duration=0.6)
+        plan.add(Phase("release", {a: _jt(tr[a].times, tr[a].q, w_open[a]) for a in arms},
+                       "fingertips back out of both faces: the object rests on the table", "cartesian"))
+        q, _ = plan.end_state()
+        # back to the pre-grasps; where that line is blocked, straight up or further back out of the faces
+        tr, err, how = None, None, ""
+        for how, ends in (("to their pre-grasps", pre),
+                          ("straight up", {a: translate_along(U[a], up, RETREAT_UP) for a in arms}),
+                          ("back from the faces", {a: translate_along(U[a], G[a].squeeze_dir, -RETREAT_UP)
+                                                   for a in arms})):
+            try:
+                with motion.context("cut", openings=w_open):
+                    tr = motion.cartesian({a: (U[a], ends[a]) for a in arms}, q)
+                break
+            except PlanFailure as e:
+                err = PlanFailure(e.stage, f"{err.message}; {how}: {e.message}" if err else f"{how}: {e.message}")
+        if tr is None:
+            raise err
         plan.add(Phase("retreat", {a: _jt(tr[a].times, tr[a].q, w_open[a]) for a in arms},
-                       "both grippers back off to their pre-grasps", "cartesian"))
+                       f"both grippers back off {how}", "cartesian"))
     else:
         plan.add(Phase("release", {a: _still(q[a], CLOSED, w_open[a]) for a in arms}, "both grippers open",
                        "gripper"))

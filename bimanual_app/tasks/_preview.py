@@ -83,6 +83,9 @@ def preview_plan(plan: TaskPlan, inputs, robot, object_id: int, truth: bool = Fa
     try:
         for arm, q in plan.q_start.items():
             world.arms[arm].reset(q, plan.width_start[arm])
+        for arm, grip in (plan.info.get("grip") or {}).items():
+            if grip == "push" and arm in world.arms:  # the arm's compliance makes the squeeze force
+                world.arms[arm].set_push_compliance()
         world.hold(0.2)
         obj = physical.get(object_id)
         if obj is None:
