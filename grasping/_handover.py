@@ -37,7 +37,8 @@ from ._arms import Arm, ArmGrasps, TwoArmCheck, reachable_grasps
 from ._collision import GripperCollider, grippers_collide, grippers_distance
 from ._objects import ObjectGeometry, Support
 
-__all__ = ["HandoverParams", "Handover", "handover_givers", "plan_handover", "catch_probability"]
+__all__ = ["HandoverParams", "Handover", "handover_givers", "plan_handover", "catch_probability",
+           "giver_hold_probability"]
 
 
 @dataclass(frozen=True)
@@ -65,6 +66,9 @@ class HandoverParams:
     per transfer pose. prior_cut: (giver, transfer pose) candidates whose giver pose or best receiver pose
     the arm is predicted not to reach (see ``ArmReach.prior``) are skipped. max_transfer_checks: candidates
     checked exactly (IK), cheapest predicted first.
+    object_sigma_m, pad_half_height: an object's position error in the cloud (1 sigma; 5-15 mm on the bench's
+        pipeline clouds) and how far a pad reaches past its contact centre: givers are ranked first by how
+        likely they still hold the object despite that error (:func:`giver_hold_probability`), in tiers of 0.1.
     receiver_clearance: how far the receiver's fingers open past the object on each side (within the stroke;
         a pick opens 1 cm): at the transfer pose only the giver is near, and the spare opening is what absorbs
         the calibration error below.
@@ -93,6 +97,8 @@ class HandoverParams:
     prior_cut: float = 0.10
     max_transfer_checks: int = 30
     receiver_clearance: float = 0.025
+    object_sigma_m: float = 0.008
+    pad_half_height: float = 0.005
     b2b_sigma_m: float = 0.007
     b2b_sigma_rad: float = 0.012
 
@@ -110,7 +116,8 @@ class Handover:
     receiver: the receiver's grasp at the transfer pose: ``T_b1_g``, ``width``, ``contact_width``, ``score``,
         ``q``, ``q_pre``, ``index`` (in the free-space grasp set).
     gap: smallest distance between the two grippers when both hold the object (m).
-    score: mean of the two grasp scores times ``catch``.
+    score: mean of the two grasp scores times ``catch`` and the giver's hold probability
+        (:func:`giver_hold_probability`).
     catch: probability that the receiver's open fingers close around the object given the calibration
         error (:func:`catch_probability`); margin: the receiver's opening past the object on each side (m);
         sigma: the position error assumed at the transfer pose (1-sigma, m).
@@ -140,6 +147,15 @@ def catch_probability(margin: np.ndarray, sigma: np.ndarray) -> np.ndarray:
 
     margin = np.maximum(np.asarray(margin, dtype=np.float64), 0.0)
     return erf(margin / (np.sqrt(2.0) * np.maximum(np.asarray(sigma, dtype=np.float64), 1e-6)))
+
+
+def giver_hold_probability(depth: np.ndarray, params: HandoverParams) -> np.ndarray:
+    """(N,) probability that a pick whose contact centre lies ``depth`` (N,) m behind the fingertips still
+    has its pads on the object when the object's top is off by a normal error of ``params.object_sigma_m``:
+    ``catch_probability(depth + pad_half_height, object_sigma_m)``. A shallow pick at the very top of an
+    object (what leaves a receiver the most room) slips off when the object is a few millimetres lower than
+    the cloud says."""
+    return catch_probability(np.asarray(depth, dtype=np.float64) + params.pad_half_height, params.object_sigma_m)
 
 
 def _transfer_sigma(p: HandoverParams, T_b1_b2: np.ndarray, points_b1: np.ndarray) -> np.ndarray:
@@ -242,7 +258,8 @@ def handover_givers(picks: GraspSet, free: GraspSet, reached: ArmGrasps, prim: A
                               free, params.gap) for i in range(len(picks))]
     n = np.array([len(c) for c in clear], dtype=int)
     cand = np.nonzero(n > 0)[0]
-    cand = cand[np.lexsort((-picks.score[cand], -np.minimum(n[cand], params.enough_clear)))]
+    hold = np.round(giver_hold_probability(picks.depth[cand], params), 1)
+    cand = cand[np.lexsort((-picks.score[cand], -np.minimum(n[cand], params.enough_clear), -hold))]
     known = {int(i): j for j, i in enumerate(reached.index)}
     unknown = np.array([i for i in cand if int(i) not in known], dtype=int)
     more = reachable_grasps(picks.take(unknown), prim, params.giver_tries, params.givers)
@@ -364,7 +381,8 @@ def plan_handover(geo: ObjectGeometry, support: Support, giver: ArmGrasps, free:
                         "terms": {t: float(v[k]) for t, v in free.terms.items()},
                         "q": rr.q[n], "q_pre": rr.q_pre[n], "index": int(k)}
             c = float(catch[order[n]])
-            score = 0.5 * (float(giver.grasps.score[gi]) + float(free.score[k])) * c
+            hold = float(giver_hold_probability(giver.grasps.depth[gi], params))
+            score = 0.5 * (float(giver.grasps.score[gi]) + float(free.score[k])) * c * hold
             return Handover(move, move[:3, :3] @ geo.centre + move[:3, 3], gi, Gt, rg.q[0], w_closed, receiver,
                             gap, score, dict(stats), c, float(margin[order[n]]),
                             float(_transfer_sigma(params, sec.T_b1_b, R_used[:3, 3])[0]), giver), stats

@@ -20,7 +20,7 @@ import numpy as np
 from bimanual_app.io_utils import Problem
 
 __all__ = ["Support", "ObjectGeometry", "estimate_support", "object_geometry", "check_graspable", "closed_geometry",
-           "complete_by_symmetry"]
+           "complete_by_symmetry", "complete_walls", "hides_table"]
 
 
 @dataclass(frozen=True)
@@ -111,9 +111,17 @@ def estimate_support(points: np.ndarray, labels: np.ndarray, table_plane: np.nda
 
 
 def object_geometry(obj_id: int, P: np.ndarray, support: Support, voxel: float = 0.003,
-                    normal_radius: float | None = None, complete: bool = True) -> ObjectGeometry:
+                    normal_radius: float | None = None, complete: bool = True,
+                    background: np.ndarray | None = None) -> ObjectGeometry:
     """Gravity-aligned box, downsampled points and outward normals of one object's points P (M, 3);
-    with ``complete``, unseen sides filled by :func:`complete_by_symmetry`."""
+    with ``complete``, unseen sides filled by :func:`complete_by_symmetry` and, for a carton standing on the
+    table (both sides >= ``WALLS_MIN_SIDE``, its points covering its footprint rectangle), by
+    :func:`complete_walls`.
+
+    ``background`` (K, 3): the scene's other points (the table). An object whose lowest points are above the
+    table (only its top was seen, as wrist cameras looking down see a carton) still stands on the table when
+    the table is hidden under its footprint (:func:`hides_table`): its box then reaches down to the table.
+    """
     import cv2
     import open3d as o3d
 
@@ -134,6 +142,8 @@ def object_geometry(obj_id: int, P: np.ndarray, support: Support, voxel: float =
     top = float(np.percentile(elev, q[1]))
     bottom = max(0.0, float(np.percentile(elev, q[0])))
     bottom = 0.0 if bottom < 0.02 else bottom  # resting on the table: the box reaches down to it
+    if bottom > 0.0 and background is not None and hides_table(background, support, u, v, (lo_u, hi_u), (lo_v, hi_v)):
+        bottom = 0.0  # only the top was seen, but nothing under it: it stands on the table
     centre = 0.5 * (lo_u + hi_u) * u + 0.5 * (lo_v + hi_v) * v + (support.height + 0.5 * (top + bottom)) * up
     T = np.eye(4)
     T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = u, v, up, centre
@@ -154,7 +164,100 @@ def object_geometry(obj_id: int, P: np.ndarray, support: Support, voxel: float =
     flip = np.einsum("ij,ij->i", N, ref) < 0
     N[flip] *= -1
     geo = ObjectGeometry(int(obj_id), len(P), Q, N, T, extent, centre, voxel)
-    return complete_by_symmetry(geo, support) if complete else geo
+    if not complete:
+        return geo
+    geo = complete_by_symmetry(geo, support)
+    big = min(extent[0], extent[1]) >= WALLS_MIN_SIDE
+    if bottom == 0.0 and big and _footprint_cover(P @ u, P @ v, (lo_u, hi_u), (lo_v, hi_v)) >= WALLS_MIN_COVER:
+        geo = complete_walls(geo, support)
+    return geo
+
+
+WALLS_MIN_SIDE = 0.08  # m: side walls are completed for objects at least this wide both ways (cartons) ...
+WALLS_MIN_COVER = 0.95  # ... whose points cover this share of their footprint rectangle (a 20 cm disc: 0.93)
+
+
+def _footprint_cover(pu: np.ndarray, pv: np.ndarray, range_u: tuple, range_v: tuple, cell: float = 0.015) -> float:
+    """Share of the footprint rectangle's ``cell``-sized cells that hold a point (coordinates pu, pv (M,))."""
+    (lu, hu), (lv, hv) = range_u, range_v
+    nu, nv = max(1, int(round((hu - lu) / cell))), max(1, int(round((hv - lv) / cell)))
+    ok = (pu >= lu) & (pu <= hu) & (pv >= lv) & (pv <= hv)
+    iu = np.clip(((pu[ok] - lu) / max(hu - lu, 1e-9) * nu).astype(int), 0, nu - 1)
+    iv = np.clip(((pv[ok] - lv) / max(hv - lv, 1e-9) * nv).astype(int), 0, nv - 1)
+    occ = np.zeros((nu, nv), dtype=bool)
+    occ[iu, iv] = True
+    return float(occ.mean())
+
+
+def hides_table(background: np.ndarray, support: Support, u: np.ndarray, v: np.ndarray, range_u: tuple,
+                range_v: tuple, inset: float = 0.02, ring: float = 0.06, max_ratio: float = 0.2,
+                min_ring_points: int = 50) -> bool:
+    """Whether an object with footprint ``range_u`` x ``range_v`` (along the horizontal unit axes u, v (3,))
+    hides the table: table points (``background`` (K, 3) within 1.5 cm of the table plane) inside the
+    footprint, ``inset`` m in from its edges, are under ``max_ratio`` times as dense as in the ``ring`` m
+    wide band around it (which must hold ``min_ring_points``). A solid standing on the table hides it from
+    every camera; something held above it does not."""
+    B = np.asarray(background, dtype=np.float64).reshape(-1, 3)
+    B = B[np.abs(support.elevation(B)) < 0.015]
+    if not len(B):
+        return False
+    bu, bv = B @ u, B @ v
+    (lu, hu), (lv, hv) = range_u, range_v
+    if hu - lu < 2 * inset + 0.02 or hv - lv < 2 * inset + 0.02:
+        return False  # too small to tell
+
+    def inside(m: float) -> np.ndarray:
+        return (bu > lu - m) & (bu < hu + m) & (bv > lv - m) & (bv < hv + m)
+
+    n_in = int(inside(-inset).sum())
+    n_ring = int((inside(ring) & ~inside(0.01)).sum())
+    a_in = (hu - lu - 2 * inset) * (hv - lv - 2 * inset)
+    a_ring = (hu - lu + 2 * ring) * (hv - lv + 2 * ring) - (hu - lu + 0.02) * (hv - lv + 0.02)
+    if n_ring < min_ring_points:
+        return False
+    return n_in / a_in < max_ratio * n_ring / a_ring
+
+
+def complete_walls(geo: ObjectGeometry, support: Support, gap: float | None = None) -> ObjectGeometry:
+    """Fill the unseen parts of the four side faces of a box standing on the table (``geo``'s gravity-aligned
+    box, from the table to its top), as unobserved points (``observed=False``) with outward normals.
+
+    Wrist cameras looking down often see a carton's top and little of its sides; the top's outline fixes
+    where the side faces are, and a box standing on the table (see :func:`hides_table`) has them down to the
+    table. A face some of whose points were seen gets its wall at their median depth (a noisy face's seen
+    points and the wall then make one plane), else at the box's side. Only points farther than ``gap`` from every point so far are added, so what was seen (or filled by
+    :func:`complete_by_symmetry`) is kept; collision checks treat the new points as solid, scores trust
+    them less.
+    """
+    from scipy.spatial import cKDTree
+
+    gap = 2.5 * geo.voxel if gap is None else gap
+    step = max(2.0 * geo.voxel, 0.005)
+    T, ext = geo.T_b1_box, geo.extent
+    ax, ay, up = T[:3, 0], T[:3, 1], T[:3, 2]
+    hs = np.arange(0.5 * step, ext[2] - 0.25 * step, step)
+    pts, nrm = [], []
+    for axis, along, half_n, half_a in ((ax, ay, 0.5 * ext[0], 0.5 * ext[1]), (ay, ax, 0.5 * ext[1], 0.5 * ext[0])):
+        ls = np.arange(-half_a + 0.5 * step, half_a - 0.25 * step, step)
+        L, H = np.meshgrid(ls, hs, indexing="ij")
+        for sgn in (1.0, -1.0):
+            n = sgn * axis
+            # the wall where the face's seen points are (their median depth), else at the box's side
+            rel = (geo.points - geo.centre) @ n
+            own = geo.observed & (rel > half_n - 0.03) & (geo.normals @ n > 0.7)
+            off = float(np.median(rel[own])) if own.sum() >= 20 else half_n
+            pts.append(geo.centre + off * n + L.reshape(-1, 1) * along + (H.reshape(-1, 1) - 0.5 * ext[2]) * up)
+            nrm.append(np.broadcast_to(n, (L.size, 3)))
+    if not pts:
+        return geo
+    Q, Nq = np.concatenate(pts), np.concatenate(nrm)
+    d, _ = cKDTree(geo.points).query(Q, k=1)
+    new = d > gap
+    if not new.any():
+        return geo
+    return ObjectGeometry(geo.id, geo.n_points, np.concatenate([geo.points, Q[new]]), np.concatenate([geo.normals, Nq[new]]),
+                          geo.T_b1_box, geo.extent, geo.centre, geo.voxel,
+                          np.concatenate([geo.observed, np.zeros(int(new.sum()), dtype=bool)]))
 
 
 def complete_by_symmetry(geo: ObjectGeometry, support: Support, gap: float | None = None) -> ObjectGeometry:

@@ -142,7 +142,8 @@ def plan_object(k: int, cloud: SceneCloud, support: Support, gripper: GripperMod
         pr = Problem(source, f"object {k}", f"segment has {n} point(s); at least {params.min_object_points} are needed",
                      "check the segmentation (an empty or speck segment), or capture the object from more views")
         return ObjectPlan(k, None, "none", [pr])
-    geo = object_geometry(k, cloud.points[mask], support, voxel=params.sampler.ray_radius * 0.75)
+    geo = object_geometry(k, cloud.points[mask], support, voxel=params.sampler.ray_radius * 0.75,
+                          background=cloud.points[cloud.labels < 0])
     plan = ObjectPlan(k, geo, "single")
     sp = params.sampler
     max_cw = sp.max_contact_width(gripper)
