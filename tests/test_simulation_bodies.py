@@ -177,3 +177,22 @@ def test_long_box_keeps_its_end_faces_and_ignores_a_small_box_merged_into_it():
     assert sh.kind == "box"
     assert np.allclose(np.sort(sh.size), np.sort(size), atol=0.008), sh.size
     assert np.allclose(sh.T_b1_o[:2, 3], [0.39, -0.03], atol=0.006)
+
+
+def test_truth_meshes_are_their_convex_hulls_not_their_boxes():
+    """A synthetic scene's torus is simulated (in synth and in the truth world) as the convex hull of its mesh:
+    a disc, not the square box of its size; an unknown mesh still falls back to its box."""
+    from bimanual_app.synth._objects import sample_spec
+
+    spec = sample_spec("torus", np.random.default_rng(0))  # what synth put in the scene
+    size = spec.size.tolist()
+    T = make_T(np.eye(3), [0.3, 0.1, size[2] / 2])
+    truth = truth_shapes([{"id": 0, "kind": "torus", "shape": "mesh", "T_b1_o": T.tolist(), "size": size, "mass": 0.05},
+                          {"id": 1, "kind": "teapot", "shape": "mesh", "T_b1_o": T.tolist(), "size": size}])
+    torus, other = truth[0], truth[1]
+    assert torus.kind == "hull" and other.kind == "box" and torus.mass == 0.05
+    assert np.allclose(torus.size, size, atol=1e-6)
+    assert 0.6 < torus.volume / np.prod(size) < 0.8  # a (faceted) disc: pi/4 of its box at most
+    corner = T[:3, 3] + np.array([0.45 * size[0], 0.45 * size[1], 0.0])
+    assert not torus.contains(corner[None])[0] and other.contains(corner[None])[0]
+    assert torus.contains(T[:3, 3][None])[0]  # (its hull: the hole is filled)

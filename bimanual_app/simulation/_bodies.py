@@ -25,7 +25,7 @@ import numpy as np
 from bimanual_app.transforms import check_shape, make_T
 
 __all__ = ["TablePlane", "BodyShape", "fit_table", "table_from_plane", "shape_from_points", "box_shape",
-           "remove_outliers", "trim_outer", "box_from_faces", "DEFAULT_DENSITY", "MASS_RANGE"]
+           "hull_shape", "remove_outliers", "trim_outer", "box_from_faces", "DEFAULT_DENSITY", "MASS_RANGE"]
 
 DEFAULT_DENSITY = 400.0  # kg/m^3
 MASS_RANGE = (0.02, 1.5)  # kg
@@ -448,3 +448,26 @@ def box_shape(T_b1_o: np.ndarray, size: np.ndarray, mass: float | None = None, k
         raise ValueError(f"unknown primitive kind {kind!r} (box, cylinder, sphere)")
     m = float(mass) if mass is not None else _mass(vol, density)
     return BodyShape(np.asarray(T_b1_o, dtype=np.float64), kind, size, vol, m)
+
+
+def hull_shape(T_b1_o: np.ndarray, vertices_o: np.ndarray, mass: float | None = None,
+               density: float = DEFAULT_DENSITY) -> BodyShape:
+    """The convex hull of ``vertices_o`` (V, 3), given in a frame ``o`` with a known pose ``T_b1_o`` (4, 4)
+    (ground-truth mesh objects). The body frame keeps o's axes, its origin moved to the hull's centroid."""
+    from scipy.spatial import ConvexHull
+
+    V = check_shape("vertices_o", np.asarray(vertices_o, dtype=np.float64), (None, 3))
+    hull = ConvexHull(V)
+    centroid = _hull_centroid(V[hull.vertices], hull)
+    local = V[hull.vertices] - centroid
+    remap = {int(v): i for i, v in enumerate(hull.vertices)}
+    faces = np.array([[remap[int(a)] for a in f] for f in hull.simplices], dtype=np.int64)
+    ctr = local.mean(0)
+    for i, f in enumerate(faces):
+        a, b, c = local[f]
+        if np.dot(np.cross(b - a, c - a), a - ctr) < 0:
+            faces[i] = f[[0, 2, 1]]
+    T = np.asarray(T_b1_o, dtype=np.float64) @ make_T(np.eye(3), centroid)
+    vol = float(hull.volume)
+    m = float(mass) if mass is not None else _mass(vol, density)
+    return BodyShape(T, "hull", local.max(0) - local.min(0), vol, m, local, faces)

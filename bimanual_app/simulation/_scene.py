@@ -11,7 +11,7 @@ import numpy as np
 from bimanual_app.io_utils import InputError, Problem
 from bimanual_app.transforms import check_shape, check_T
 
-from ._bodies import BodyShape, TablePlane, box_shape, fit_table, shape_from_points, table_from_plane
+from ._bodies import BodyShape, TablePlane, box_shape, fit_table, hull_shape, shape_from_points, table_from_plane
 from ._record import Recorder
 from ._world import PreviewWorld, SimObject
 
@@ -74,10 +74,12 @@ def estimated_shapes(points: np.ndarray, labels: np.ndarray, table: TablePlane |
 
 
 def truth_shapes(objects: list[dict]) -> dict[int, BodyShape]:
-    """Primitive shapes of ground_truth.yaml ``objects`` (``id``, ``kind``, ``T_b1_o``, ``size``, ``mass``).
+    """Shapes of ground_truth.yaml ``objects`` (``id``, ``kind``, ``T_b1_o``, ``size``, ``mass``).
 
     ``shape`` (else ``kind``) box / cylinder / sphere map to the same primitive (a cylinder's axis is o's z,
-    size = (2r, 2r, h)); any other (a mesh) is simulated as the box of its ``size``.
+    size = (2r, 2r, h)). A mesh of the synthetic catalogue (``shape: mesh``, ``kind`` duck / mug / bunny /
+    torus) is the convex hull of that mesh at its ``size``, the shape the scene was simulated with
+    (``bimanual_app.synth.mesh_hull``); any other mesh is simulated as the box of its ``size``.
     """
     out = {}
     for i, o in enumerate(objects):
@@ -85,6 +87,14 @@ def truth_shapes(objects: list[dict]) -> dict[int, BodyShape]:
         T = check_T(f"ground_truth objects[{i}].T_b1_o", np.asarray(o["T_b1_o"], dtype=np.float64))
         size = np.asarray(o["size"], dtype=np.float64).reshape(-1)
         kind = str(o.get("shape", o.get("kind", "box"))).lower()  # synth: shape box/cylinder/mesh
+        if kind == "mesh" and size.size == 3:
+            try:
+                from bimanual_app.synth import mesh_hull
+
+                out[oid] = hull_shape(T, mesh_hull(str(o.get("kind", "")), size), o.get("mass"))
+                continue
+            except ValueError:
+                pass  # not a catalogue mesh: its box
         if kind not in ("box", "cylinder", "sphere"):
             kind = "box"
         if kind == "sphere" and size.size == 1:

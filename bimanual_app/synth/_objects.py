@@ -126,6 +126,32 @@ def _mesh_spec(kind: str, rng: np.random.Generator) -> ObjectSpec:
                       np.asarray(uv, dtype=np.float64), np.asarray(tm.vertex_normals), hull)
 
 
+def mesh_hull(kind: str, size) -> np.ndarray:
+    """(K, 3) convex-hull vertices, in the object frame o, of catalogue mesh ``kind`` scaled to the box
+    ``size`` (3,) that ground_truth.yaml records: the collision shape the scene was simulated with (see
+    :func:`_mesh_spec`: a uniform scale, centred on the bounding box). Raises ValueError for an unknown
+    kind, a missing mesh file, or a size no uniform scale of the mesh gives."""
+    import trimesh
+
+    from bimanual_app.transforms import so3_exp
+
+    if kind not in _MESHES:
+        raise ValueError(f"{kind!r} is not a catalogue mesh ({', '.join(_MESHES)})")
+    fname, rotvec, _, _ = _MESHES[kind]
+    path = _pybullet_data() / fname
+    if not path.is_file():
+        raise ValueError(f"mesh file {path} not found")
+    V = np.asarray(trimesh.load(path, force="mesh", process=False).vertices, dtype=np.float64) @ so3_exp(np.array(rotvec)).T
+    ext = V.max(0) - V.min(0)
+    size = np.asarray(size, dtype=np.float64).reshape(3)
+    s = size / np.maximum(ext, 1e-12)
+    if np.ptp(s) > 0.01 * s.mean():
+        raise ValueError(f"size {size.tolist()} is not a uniform scale of the {kind} mesh")
+    V = V * s.mean()
+    V -= 0.5 * (V.max(0) + V.min(0))
+    return np.asarray(trimesh.Trimesh(V, process=False).convex_hull.vertices)
+
+
 def sample_spec(kind: str, rng: np.random.Generator) -> ObjectSpec:
     """A random object of ``kind`` (sizes in the ranges of the module docstring)."""
     if kind in _MESHES:

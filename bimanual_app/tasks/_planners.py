@@ -236,9 +236,22 @@ def _joint_grasp(motion, choice, q_start, width_start, lift, up, at) -> TaskPlan
     # 3. grip: close (pinch) or squeeze (push)
     q, _ = plan.end_state()
     if push:
-        S = {a: translate_along(G[a].T_b1_g, G[a].squeeze_dir, G[a].press + _face_gap(motion, G[a])) for a in arms}
-        with motion.context("cut", openings=w_open):
-            tr = motion.cartesian({a: (G[a].T_b1_g, S[a]) for a in arms}, q, min_duration=1.0)
+        # driven press + gap past the contact; where an arm cannot go that far (the far end of its reach),
+        # half the gap, then the press alone
+        gap = {a: _face_gap(motion, G[a]) for a in arms}
+        tr, err = None, None
+        for f in (1.0, 0.5, 0.0):
+            S = {a: translate_along(G[a].T_b1_g, G[a].squeeze_dir, G[a].press + f * gap[a]) for a in arms}
+            try:
+                with motion.context("cut", openings=w_open):
+                    tr = motion.cartesian({a: (G[a].T_b1_g, S[a]) for a in arms}, q, min_duration=1.0)
+                break
+            except PlanFailure as e:
+                err = err or e
+            if max(gap.values()) < 1e-4:
+                break
+        if tr is None:
+            raise err
         plan.add(Phase("squeeze", {a: _jt(tr[a].times, tr[a].q, w_open[a]) for a in arms},
                        "fingertips pressed into both faces: the object is held between the grippers", "cartesian"))
     else:
