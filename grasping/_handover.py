@@ -95,7 +95,7 @@ class HandoverParams:
     enough_clear: int = 6
     receivers_checked: int = 6
     prior_cut: float = 0.10
-    max_transfer_checks: int = 30
+    max_transfer_checks: int = 80
     receiver_clearance: float = 0.025
     object_sigma_m: float = 0.008
     pad_half_height: float = 0.005
