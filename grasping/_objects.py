@@ -225,12 +225,11 @@ def complete_walls(geo: ObjectGeometry, support: Support, gap: float | None = No
     Wrist cameras looking down often see a carton's top and little of its sides; the top's outline fixes
     where the side faces are, and a box standing on the table (see :func:`hides_table`) has them down to the
     table. A face some of whose points were seen gets its wall at their median depth (a noisy face's seen
-    points and the wall then make one plane), else at the box's side. Only points farther than ``gap`` from every point so far are added, so what was seen (or filled by
+    points and the wall then make one plane), else at the box's side. Only points farther than ``gap``
+    from every point so far are added, so what was seen (or filled by
     :func:`complete_by_symmetry`) is kept; collision checks treat the new points as solid, scores trust
     them less.
     """
-    from scipy.spatial import cKDTree
-
     gap = 2.5 * geo.voxel if gap is None else gap
     step = max(2.0 * geo.voxel, 0.005)
     T, ext = geo.T_b1_box, geo.extent
@@ -251,6 +250,14 @@ def complete_walls(geo: ObjectGeometry, support: Support, gap: float | None = No
     if not pts:
         return geo
     Q, Nq = np.concatenate(pts), np.concatenate(nrm)
+    return _add_unseen(geo, Q, Nq, gap)
+
+
+def _add_unseen(geo: ObjectGeometry, Q: np.ndarray, Nq: np.ndarray, gap: float) -> ObjectGeometry:
+    """``geo`` with the points Q (K, 3) (normals Nq (K, 3)) that lie farther than ``gap`` from all of its
+    points added as unobserved."""
+    from scipy.spatial import cKDTree
+
     d, _ = cKDTree(geo.points).query(Q, k=1)
     new = d > gap
     if not new.any():
@@ -272,8 +279,6 @@ def complete_by_symmetry(geo: ObjectGeometry, support: Support, gap: float | Non
     are added (they fill holes; they never replace what was seen), and they are marked ``observed=False``:
     the collision checks treat them as solid, the antipodal score trusts them less.
     """
-    from scipy.spatial import cKDTree
-
     gap = 2.5 * geo.voxel if gap is None else gap
     up = support.up
     side = np.abs(geo.normals @ up) < 0.7
@@ -282,13 +287,7 @@ def complete_by_symmetry(geo: ObjectGeometry, support: Support, gap: float | Non
     R = 2.0 * np.outer(up, up) - np.eye(3)  # half a turn about the vertical axis
     Q = (geo.points[side] - geo.centre) @ R.T + geo.centre
     Nq = geo.normals[side] @ R.T
-    d, _ = cKDTree(geo.points).query(Q, k=1)
-    new = d > gap
-    if not new.any():
-        return geo
-    return ObjectGeometry(geo.id, geo.n_points, np.concatenate([geo.points, Q[new]]), np.concatenate([geo.normals, Nq[new]]),
-                          geo.T_b1_box, geo.extent, geo.centre, geo.voxel,
-                          np.concatenate([geo.observed, np.zeros(int(new.sum()), dtype=bool)]))
+    return _add_unseen(geo, Q, Nq, gap)
 
 
 def check_graspable(geo: ObjectGeometry, min_width: float, max_width: float, source: str = "segments",

@@ -302,14 +302,7 @@ def shape_from_points(points: np.ndarray, table: TablePlane | None = None, kind:
     centroid = _hull_centroid(p[hull.vertices], hull)
     T = make_T(R, centroid)
     local = (verts - centroid) @ R
-    # faces re-indexed onto the kept vertices, oriented outward
-    remap = {int(v): i for i, v in enumerate(hull.vertices)}
-    faces = np.array([[remap[int(a)] for a in f] for f in hull.simplices], dtype=np.int64)
-    ctr = local.mean(0)
-    for i, f in enumerate(faces):
-        a, b, c = local[f]
-        if np.dot(np.cross(b - a, c - a), a - ctr) < 0:
-            faces[i] = f[[0, 2, 1]]
+    faces = _outward_faces(hull, local)
     size = local.max(0) - local.min(0)
     if kind == "auto":  # box-like objects as their box: planar faces and a flat top, not noisy facets
         # box-like or not from the trimmed points (the spread layers of a fused cloud blur the normals); the
@@ -322,6 +315,19 @@ def shape_from_points(points: np.ndarray, table: TablePlane | None = None, kind:
         if hull.volume >= BOX_FILL * box.volume:
             return box
     return BodyShape(T, "hull", size, float(hull.volume), _mass(float(hull.volume), density), local, faces)
+
+
+def _outward_faces(hull, local: np.ndarray) -> np.ndarray:
+    """(F, 3) int triangles of a scipy ConvexHull re-indexed onto its kept vertices (``local`` (V, 3), in
+    ``hull.vertices`` order), each turned to face outward."""
+    remap = {int(v): i for i, v in enumerate(hull.vertices)}
+    faces = np.array([[remap[int(a)] for a in f] for f in hull.simplices], dtype=np.int64)
+    ctr = local.mean(0)
+    for i, f in enumerate(faces):
+        a, b, c = local[f]
+        if np.dot(np.cross(b - a, c - a), a - ctr) < 0:
+            faces[i] = f[[0, 2, 1]]
+    return faces
 
 
 def _hull_centroid(points: np.ndarray, hull) -> np.ndarray:
@@ -460,13 +466,7 @@ def hull_shape(T_b1_o: np.ndarray, vertices_o: np.ndarray, mass: float | None = 
     hull = ConvexHull(V)
     centroid = _hull_centroid(V[hull.vertices], hull)
     local = V[hull.vertices] - centroid
-    remap = {int(v): i for i, v in enumerate(hull.vertices)}
-    faces = np.array([[remap[int(a)] for a in f] for f in hull.simplices], dtype=np.int64)
-    ctr = local.mean(0)
-    for i, f in enumerate(faces):
-        a, b, c = local[f]
-        if np.dot(np.cross(b - a, c - a), a - ctr) < 0:
-            faces[i] = f[[0, 2, 1]]
+    faces = _outward_faces(hull, local)
     T = np.asarray(T_b1_o, dtype=np.float64) @ make_T(np.eye(3), centroid)
     vol = float(hull.volume)
     m = float(mass) if mass is not None else _mass(vol, density)
