@@ -167,3 +167,18 @@ def test_a_press_into_a_rigid_box_is_compliant_not_effort_limited(robot):
         assert 5.0 < total < 120.0, total
     finally:
         world.close()
+
+
+def test_an_object_that_fell_off_the_table_is_said_so():
+    """The verdict's detail says the object fell off the table rather than that it "rose only -7509 cm"."""
+    from types import SimpleNamespace
+
+    from bimanual_app.simulation._checks import HoldSample
+
+    world = SimpleNamespace(height=lambda obj: 0.05, dt=1.0 / 240.0)
+    mon = HoldMonitor(world, SimpleNamespace(body=0))
+    mon.samples = [HoldSample(t, -0.5 * t * t * 9.81, frozenset(), frozenset(), False) for t in np.arange(0, 3, 0.1)]
+    v = mon.lifted_and_held({"secondary"}, rise=0.10, hold_s=2.0)
+    assert not v.ok and "fell off the table" in v.detail and "rose only" not in v.detail
+    mon.samples = [HoldSample(t, 0.03, frozenset(), frozenset(), False) for t in np.arange(0, 3, 0.1)]
+    assert "rose only 3.0 cm" in mon.lifted_and_held({"secondary"}).detail

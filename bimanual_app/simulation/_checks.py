@@ -13,6 +13,8 @@ import numpy as np
 
 __all__ = ["HoldMonitor", "HoldSample", "HoldVerdict"]
 
+FELL_OFF = 0.05  # m below its start height: the object has left the table top (fell off its edge)
+
 
 @dataclass
 class HoldSample:
@@ -127,7 +129,9 @@ class HoldMonitor:
                     why.append(f"not held by {', '.join(sorted(missing))}")
                 if exclusive and not last.touching <= arms:
                     why.append(f"still touched by {', '.join(sorted(last.touching - arms))}")
-            if max_rise < rise:
+            if last is not None and last.rise < -FELL_OFF:  # below the table top: off its edge
+                why.append(f"the object fell off the table ({-last.rise * 100:.0f} cm below where it started)")
+            elif max_rise < rise:
                 why.append(f"rose only {max_rise * 100:.1f} cm (needs {rise * 100:.0f} cm)")
             detail = (f"held as required for {held:.1f} s of {hold_s:.1f} s"
                       + (": " + "; ".join(why) if why else ""))
