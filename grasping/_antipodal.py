@@ -67,7 +67,7 @@ class SamplerParams:
     min_width: float = 0.006
     clearance: float = 0.010
     min_clearance: float = 0.003
-    scene_margin: float = 0.002
+    scene_margin: float = 0.003  # the task planner's contact margin (see PlanParams.octree_resolution)
     own_resolution: float = 0.002
     min_points: int = 8
     depths: tuple[float, ...] = (0.85, 0.7, 0.55, 0.4, 0.25, 0.12, 0.0)

@@ -37,7 +37,7 @@ from ._arms import Arm, ArmGrasps, TwoArmCheck, reachable_grasps
 from ._collision import GripperCollider, grippers_collide, grippers_distance
 from ._objects import ObjectGeometry, Support
 
-__all__ = ["HandoverParams", "Handover", "handover_givers", "plan_handover", "catch_probability",
+__all__ = ["HandoverParams", "Handover", "handover_givers", "plan_handover", "plan_handovers", "catch_probability",
            "giver_hold_probability"]
 
 
@@ -72,6 +72,8 @@ class HandoverParams:
     receiver_clearance: how far the receiver's fingers open past the object on each side (within the stroke;
         a pick opens 1 cm): at the transfer pose only the giver is near, and the spare opening is what absorbs
         the calibration error below.
+    alternatives: hand-overs kept per object (:func:`plan_handovers`): the best first, then ones with another
+        giver grasp or transfer pose, for the task to fall back on when one cannot be planned or previewed.
     b2b_sigma_m, b2b_sigma_rad: 1-sigma error of the calibrated ``T_b1_b2`` (translation per axis, rotation)
         (``bijcr grasp`` takes them from calibration.json's ``uncertainty``). The secondary's idea of where the
         object is at the transfer pose is off by about ``sqrt(s_m^2 + (s_rad d)^2)`` along any axis, d = the
@@ -101,6 +103,7 @@ class HandoverParams:
     pad_half_height: float = 0.005
     b2b_sigma_m: float = 0.007
     b2b_sigma_rad: float = 0.012
+    alternatives: int = 3
 
 
 @dataclass
@@ -290,10 +293,50 @@ def plan_handover(geo: ObjectGeometry, support: Support, giver: ArmGrasps, free:
     (M, 3): the rest of the scene; transfer poses where the object comes within ``object_clearance`` of it
     are skipped; ``object_points_b1`` (K, 3): the object's points for that check (default ``geo.points``; pass
     its closed geometry's, which include the unseen bottom)."""
+    found, stats = plan_handovers(geo, support, giver, free, arms, collider, check, params, clear, obstacles_b1,
+                                  object_points_b1, n=1)
+    return (found[0] if found else None), stats
+
+
+def _distinct(h: Handover, found: list[Handover], min_shift: float = 0.04, min_turn: float = np.deg2rad(30)) -> bool:
+    """Whether ``h`` differs from every hand-over in ``found``: another giver grasp, or a transfer pose
+    ``min_shift`` m or ``min_turn`` rad away (an alternative that fails for another reason than the first)."""
+    for f in found:
+        if f.giver_index != h.giver_index:
+            continue
+        dR = f.T_move[:3, :3].T @ h.T_move[:3, :3]
+        turn = np.arccos(np.clip((np.trace(dR) - 1.0) / 2.0, -1.0, 1.0))
+        if np.linalg.norm(f.centre - h.centre) < min_shift and turn < min_turn:
+            return False
+    return True
+
+
+def plan_handovers(geo: ObjectGeometry, support: Support, giver: ArmGrasps, free: GraspSet, arms: dict[str, Arm],
+                   collider: GripperCollider, check: TwoArmCheck | None, params: HandoverParams = HandoverParams(),
+                   clear: list[np.ndarray] | None = None, obstacles_b1: np.ndarray | None = None,
+                   object_points_b1: np.ndarray | None = None, n: int | None = None) -> tuple[list[Handover], dict]:
+    """Up to ``n`` (default ``params.alternatives``) feasible, mutually distinct hand-overs (:func:`_distinct`)
+    in the order the search finds them (the first is :func:`plan_handover`'s), with counts of what was tried.
+    The search budget (``params.max_transfer_checks``) is shared: alternatives only use what the first left.
+    Arguments as for :func:`plan_handover`."""
+    n = params.alternatives if n is None else int(n)
     stats = {"transfer_poses": 0, "object_in_scene": 0, "giver_reached": 0, "clear_receivers": 0,
              "receiver_candidates": 0, "receiver_reached": 0}
-    if len(giver) == 0 or len(free) == 0 or "secondary" not in arms:
-        return None, stats
+    found: list[Handover] = []
+    if len(giver) == 0 or len(free) == 0 or "secondary" not in arms or n < 1:
+        return found, stats
+    for h in _search(geo, support, giver, free, arms, collider, check, params, clear, obstacles_b1, object_points_b1,
+                     stats):
+        if _distinct(h, found):
+            h.tried = dict(stats)
+            found.append(h)
+            if len(found) >= n:
+                break
+    return found, stats
+
+
+def _search(geo, support, giver, free, arms, collider, check, params, clear, obstacles_b1, object_points_b1, stats):
+    """Every feasible hand-over, cheapest predicted first (see the module docstring); counts into ``stats``."""
     prim, sec = arms["primary"], arms["secondary"]
     with_pre = getattr(sec.reach, "with_pregrasp", None)
     sec_reach = with_pre(params.receiver_pregrasp) if with_pre is not None else sec.reach
@@ -383,7 +426,7 @@ def plan_handover(geo: ObjectGeometry, support: Support, giver: ArmGrasps, free:
             c = float(catch[order[n]])
             hold = float(giver_hold_probability(giver.grasps.depth[gi], params))
             score = 0.5 * (float(giver.grasps.score[gi]) + float(free.score[k])) * c * hold
-            return Handover(move, move[:3, :3] @ geo.centre + move[:3, 3], gi, Gt, rg.q[0], w_closed, receiver,
-                            gap, score, dict(stats), c, float(margin[order[n]]),
-                            float(_transfer_sigma(params, sec.T_b1_b, R_used[:3, 3])[0]), giver), stats
-    return None, stats
+            yield Handover(move, move[:3, :3] @ geo.centre + move[:3, 3], gi, Gt, rg.q[0], w_closed, receiver,
+                           gap, score, dict(stats), c, float(margin[order[n]]),
+                           float(_transfer_sigma(params, sec.T_b1_b, R_used[:3, 3])[0]), giver)
+            break  # one receiver per (giver, transfer pose): the next alternative is another pose

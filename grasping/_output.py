@@ -95,32 +95,34 @@ def _object_dict(op: ObjectPlan, T_b1_b2: np.ndarray | None, arms_checked: bool)
             ent[arm] = g
         joint.append(ent)
     d["joint_grasps"] = joint
-    h = op.handover
-    if h is not None:
-        giver = h.givers if h.givers is not None else op.reach["primary"]
-        gi = h.giver_index
-        d["handover"] = {
-            "T_move": h.T_move,
-            "object_centre_b1": h.centre,
-            "gap": h.gap,
-            "score": h.score,
-            "catch": {"probability": h.catch, "margin_m": h.margin, "position_sigma_m": h.sigma},
-            "giver": {"arm": "primary", "grasp_rank": rank_of.get(int(giver.index[gi])),
-                      "pick": {"T_b1_g": giver.grasps.T_b1_g[gi], "q": giver.q[gi], "q_pregrasp": giver.q_pre[gi],
-                               "width": float(giver.grasps.width[gi])},
-                      "transfer": {"T_b1_g": h.giver_T_b1_g, "T_b2_g": _in_b2(h.giver_T_b1_g, T_b1_b2), "q": h.giver_q},
-                      "contact_width": h.giver_width},
-            "receiver": {"arm": "secondary", "T_b1_g": h.receiver["T_b1_g"],
-                         "T_b2_g": _in_b2(h.receiver["T_b1_g"], T_b1_b2), "width": h.receiver["width"],
-                         "contact_width": h.receiver["contact_width"], "depth": h.receiver["depth"],
-                         "score": h.receiver["score"], "terms": h.receiver["terms"], "q": h.receiver["q"],
-                         "q_pregrasp": h.receiver["q_pre"]},
-        }
-    else:
-        d["handover"] = None
+    d["handover"] = _handover_dict(op.handover, op, rank_of, T_b1_b2) if op.handover is not None else None
+    d["handover_alternatives"] = [_handover_dict(h, op, rank_of, T_b1_b2) for h in op.handover_alternatives]
     d["stats"] = op.stats
     d["timings"] = {k: round(v, 4) for k, v in op.timings.items()}
     return d
+
+
+def _handover_dict(h, op, rank_of: dict, T_b1_b2) -> dict:
+    """One hand-over as grasps.json writes it (``handover`` and each of ``handover_alternatives``)."""
+    giver = h.givers if h.givers is not None else op.reach["primary"]
+    gi = h.giver_index
+    return {
+        "T_move": h.T_move,
+        "object_centre_b1": h.centre,
+        "gap": h.gap,
+        "score": h.score,
+        "catch": {"probability": h.catch, "margin_m": h.margin, "position_sigma_m": h.sigma},
+        "giver": {"arm": "primary", "grasp_rank": rank_of.get(int(giver.index[gi])),
+                  "pick": {"T_b1_g": giver.grasps.T_b1_g[gi], "q": giver.q[gi], "q_pregrasp": giver.q_pre[gi],
+                           "width": float(giver.grasps.width[gi])},
+                  "transfer": {"T_b1_g": h.giver_T_b1_g, "T_b2_g": _in_b2(h.giver_T_b1_g, T_b1_b2), "q": h.giver_q},
+                  "contact_width": h.giver_width},
+        "receiver": {"arm": "secondary", "T_b1_g": h.receiver["T_b1_g"],
+                     "T_b2_g": _in_b2(h.receiver["T_b1_g"], T_b1_b2), "width": h.receiver["width"],
+                     "contact_width": h.receiver["contact_width"], "depth": h.receiver["depth"],
+                     "score": h.receiver["score"], "terms": h.receiver["terms"], "q": h.receiver["q"],
+                     "q_pregrasp": h.receiver["q_pre"]},
+    }
 
 
 def plan_to_dict(plan: GraspPlan, inputs: dict | None = None) -> dict:

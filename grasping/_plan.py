@@ -29,7 +29,7 @@ from ._antipodal import GraspSet, SamplerParams, sample_grasps
 from ._arms import Arm, ArmGrasps, TwoArmCheck, lifting_arm, reachable_by_group, reachable_grasps
 from ._collision import GripperCollider, SceneOctree
 from ._gripper import GripperModel
-from ._handover import Handover, HandoverParams, handover_givers, plan_handover
+from ._handover import Handover, HandoverParams, handover_givers, plan_handovers
 from ._inputs import SceneCloud
 from ._joint import JointPair, joint_pairs
 from ._objects import ObjectGeometry, Support, check_graspable, closed_geometry, estimate_support, object_geometry
@@ -42,7 +42,12 @@ __all__ = ["PlanParams", "ObjectPlan", "GraspPlan", "plan_grasps", "plan_object"
 class PlanParams:
     """Scene-level parameters (metres, kilograms).
 
-    octree_resolution: voxel size of the scene map the gripper is checked against.
+    octree_resolution: voxel size of the scene map the gripper is checked against. 5 mm, with the sampler's
+        3 mm ``scene_margin``: the task planner's map and contact margin (``bimanual_app.tasks``:
+        ``MAP_RESOLUTION``, ``CONTACT_MARGIN``), on the same octree cells (octomap's grid is fixed in b1) and
+        with more points (the task also cuts the map within 1.5 cm of the object), so a grasp accepted here
+        is never refused by the task's check of the same straight approach. With 3 mm / 2 mm, fingers that
+        pass 3-5 mm over the table were accepted here and then touched the task's map.
     reach_tries / reach_want: grasps checked by each arm's reach filter, and enough reachable ones to stop.
     large_extent: objects longer than this (horizontally) need two arms.
     density, payload: mass estimate (box volume x density) and the most one arm lifts.
@@ -60,7 +65,7 @@ class PlanParams:
     sampler: SamplerParams = SamplerParams()
     push: PushParams = PushParams()
     handover_params: HandoverParams = HandoverParams()
-    octree_resolution: float = 0.003
+    octree_resolution: float = 0.005
     reach_tries: int = 40
     push_tries_per_face: int = 30
     push_want_per_face: int = 4
@@ -88,7 +93,9 @@ class ObjectPlan:
     reach: arm name -> ArmGrasps (the grasps that arm reaches). push: push contacts (joint objects) and
     push_reach: arm name -> ArmGrasps of them; pinch_reach: arm name -> ArmGrasps of the pinches towards the
     two ends (for pinch pairs). joint: JointPair list (``pair_grasps`` gives the grasp sets they index).
-    handover: Handover or None. stats, timings: counts and seconds per stage.
+    handover: Handover or None (the best found). handover_alternatives: further hand-overs with another
+    giver grasp or transfer pose (``HandoverParams.alternatives``), for the task to fall back on.
+    stats, timings: counts and seconds per stage.
     """
 
     id: int
@@ -103,6 +110,7 @@ class ObjectPlan:
     pinch_reach: dict = field(default_factory=dict)
     joint: list = field(default_factory=list)
     handover: Handover | None = None
+    handover_alternatives: list = field(default_factory=list)
     free_grasps: GraspSet | None = None
     mass_estimate: float = 0.0
     stats: dict = field(default_factory=dict)
@@ -334,9 +342,10 @@ def _handover(plan: ObjectPlan, support: Support, gripper: GripperModel, collide
     # the giver holds the object where it leaves the receiver room, not where a single-arm pick is best
     givers, clear = handover_givers(plan.grasps, plan.free_grasps, plan.reach["primary"], arms["primary"], collider,
                                     params.handover_params)
-    plan.handover, plan.stats["handover"] = plan_handover(plan.geometry, support, givers, plan.free_grasps,
-                                                          arms, collider, check, params.handover_params, clear,
-                                                          obstacles_b1, closed.points)
+    found, plan.stats["handover"] = plan_handovers(plan.geometry, support, givers, plan.free_grasps, arms, collider,
+                                                   check, params.handover_params, clear, obstacles_b1, closed.points)
+    plan.handover = found[0] if found else None
+    plan.handover_alternatives = found[1:]
     plan.stats["handover"]["givers"] = {"reachable": len(givers), "tried": givers.tried, "why_not": givers.reasons}
     if plan.handover is None:
         plan.notes.append("no hand-over found: no transfer pose where the primary holds it and the secondary"

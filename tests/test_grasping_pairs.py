@@ -93,6 +93,29 @@ def test_handover_fingers_apart():
     assert np.all(np.abs(box) <= op.geometry.extent / 2 + 0.005)
 
 
+
+def test_handover_alternatives_differ_from_the_best_and_are_written():
+    """Besides the best hand-over, the grasping stage keeps alternatives (another giver grasp or a transfer
+    pose at least 4 cm / 30 degrees away), each as feasible as the first, and writes them to grasps.json."""
+    from grasping import plan_to_dict
+    from grasping._handover import _distinct
+
+    P, L = make_cloud([Obj("cylinder", (0.3, 0.2), (0.05, 0.05, 0.11))])
+    plan = plan_grasps(scene_cloud(P, L), arms=accept_all_arms(T12), T_b1_b2=T12, params=PlanParams(retry_factor=1))
+    op = plan.objects[0]
+    alts = op.handover_alternatives
+    assert op.handover is not None and 1 <= len(alts) <= plan.params.handover_params.alternatives - 1
+    col = GripperCollider(load_gripper())
+    for k, h in enumerate(alts):
+        assert _distinct(h, [op.handover, *alts[:k]])
+        assert h.gap >= plan.params.handover_params.gap - 1e-6
+        assert grippers_distance(col, h.giver_T_b1_g, h.giver_width, h.receiver["T_b1_g"],
+                                 h.receiver["contact_width"]) >= plan.params.handover_params.gap - 1e-4
+        assert h.centre[2] - op.geometry.centre[2] >= plan.params.handover_params.min_rise - 1e-6
+    o = plan_to_dict(plan)["objects"][0]
+    assert o["handover"] is not None and len(o["handover_alternatives"]) == len(alts)
+    assert np.allclose(o["handover_alternatives"][0]["T_move"], alts[0].T_move)
+
 def test_handover_giver_leaves_the_receiver_room():
     """The giver is not the best single-arm pick (centred, deep): of the pick grasps, the first giver tried
     is one that leaves the most free-space receiver grasps clear of its fingers."""

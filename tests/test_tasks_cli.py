@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from bimanual_app.cli import main
-from bimanual_app.hardware import check_approval, load_approval, load_plan
+from bimanual_app.hardware import ApprovalError, check_approval, load_approval, load_plan
 from bimanual_app.robots import load_robot
 from tests._task_fixtures import make_task_workdir
 
@@ -177,3 +177,62 @@ def test_push_pair_squeezes_lifts_and_lets_go_before_retreating(tmp_path, monkey
     names = [p["phase"] for p in rec["plans"]]
     assert names == ["reach", "approach", "squeeze", "lift", "hold", "place", "release", "retreat"]
     assert rec["preview"]["checks"]["hold"]["max_rise_m"] >= 0.10
+
+
+def _with_alternative(work, tmp_path):
+    """A copy of the fixture's work folder whose object 0 also has a second, slightly worse hand-over."""
+    w = _copy_work(work, tmp_path)
+    path = w / "grasps" / "grasps.json"
+    g = json.loads(path.read_text())
+    alt = json.loads(json.dumps(g["objects"][0]["handover"]))
+    alt["score"] = 0.6
+    g["objects"][0]["handover_alternatives"] = [alt]
+    path.write_text(json.dumps(g))
+    return w
+
+
+def test_a_failed_preview_moves_on_to_the_next_candidate(fixture_dirs, tmp_path, monkeypatch):
+    """The first plan's preview (on the reconstruction) drops the object: the task plans and previews the
+    next candidate, which passes; task.json lists both previews and the plan is the second candidate's."""
+    from bimanual_app.tasks import _preview
+
+    monkeypatch.setenv("BIJCR_APPROVAL_KEY", "test-key")
+    scene, work = fixture_dirs
+    w = _with_alternative(work, tmp_path)
+    real, calls = _preview.preview_plan, []
+
+    def first_fails(plan, *a, **kw):
+        calls.append(kw.get("truth", False))
+        if len(calls) == 1:
+            return _preview.PreviewResult(False, "hold: the object slipped out (test)")
+        return real(plan, *a, **kw)
+
+    monkeypatch.setattr(_preview, "preview_plan", first_fails)
+    out = tmp_path / "o"
+    assert _run(["handover", scene, "--work", w, "--out", out]) == 0
+    rec = json.loads((out / "task.json").read_text())
+    assert rec["success"] is True and calls == [False, False]
+    assert [p["success"] for p in rec["previews_tried"]] == [False, True]
+    assert rec["previews_tried"][0]["reason"] == "hold: the object slipped out (test)"
+    assert rec["plan"]["info"]["candidate_rank"] == 1
+    assert load_approval(out / "approval.json").verdict == "pass"
+
+
+def test_when_every_preview_fails_the_first_is_reported_and_not_approved(fixture_dirs, tmp_path, monkeypatch):
+    from bimanual_app.tasks import _preview
+
+    monkeypatch.setenv("BIJCR_APPROVAL_KEY", "test-key")
+    scene, work = fixture_dirs
+    w = _with_alternative(work, tmp_path)
+    monkeypatch.setattr(_preview, "preview_plan",
+                        lambda plan, *a, **kw: _preview.PreviewResult(False, f"hold: dropped ({len(plan.phases)} phases)"))
+    out = tmp_path / "o"
+    assert _run(["handover", scene, "--work", w, "--out", out]) == 1
+    rec = json.loads((out / "task.json").read_text())
+    assert rec["success"] is False and rec["failed_stage"] == "preview"
+    assert "2 plans previewed, none passed" in rec["reason"] and len(rec["previews_tried"]) == 2
+    assert rec["plan"]["info"]["candidate_rank"] == 0  # the first failed one is what is reported
+    plan = load_plan(out / "plan.npz")
+    assert load_approval(out / "approval.json").verdict == "fail"
+    with pytest.raises(ApprovalError, match="verdict is 'fail'"):
+        check_approval(load_approval(out / "approval.json"), plan)  # the hardware refuses a failed preview

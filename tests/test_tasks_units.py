@@ -59,6 +59,24 @@ def test_object_choice_takes_the_best_candidate_and_says_why():
         joint_candidates(bad, "grasps.json")
 
 
+
+def test_handover_candidates_include_the_alternatives_best_first():
+    def ho(x, score):
+        return {"T_move": np.eye(4).tolist(), "score": score,
+                "giver": {"pick": _grasp(x), "transfer": {"T_b1_g": _grasp(x + 0.1)["T_b1_g"]}, "contact_width": 0.04},
+                "receiver": _grasp(x + 0.2)}
+
+    g = {"objects": [{"id": 2, "handover": ho(0.30, 0.6), "handover_alternatives": [ho(0.31, 0.4), ho(0.32, 0.7)]},
+                     {"id": 4, "handover": ho(0.25, 0.5)}]}
+    cands = handover_candidates(g, "grasps.json")
+    assert [(c.object_id, c.score) for c in cands] == [(2, 0.7), (2, 0.6), (4, 0.5), (2, 0.4)]
+    assert cands[0].pick.T_b1_g[0, 3] == pytest.approx(0.32) and cands[0].receiver.arm == "secondary"
+    mine, _ = choose(cands, None, "handover", "grasps.json", [2, 4])
+    assert [c.score for c in mine] == [0.7, 0.6, 0.4]
+    g["objects"][0]["handover_alternatives"][1]["T_move"] = "x"
+    with pytest.raises(InputError, match=r"objects\[2\]\.handover_alternatives\[1\]\.T_move"):
+        handover_candidates(g, "grasps.json")
+
 def test_robot_points_around_the_bases_are_not_obstacles():
     bases = np.array([[0.0, 0.0, 0.0], [0.6, 0.0, 0.0]])
     pts = np.array([[0.05, 0.02, 0.15],   # the primary arm seen by a camera

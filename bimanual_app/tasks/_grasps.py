@@ -136,31 +136,37 @@ def joint_candidates(grasps: dict, path: str) -> list[JointChoice]:
 
 
 def handover_candidates(grasps: dict, path: str) -> list[HandoverChoice]:
-    """The hand-over of every object that has one in grasps.json, best first."""
+    """Every hand-over in grasps.json (each object's ``handover`` and its ``handover_alternatives``), best
+    first."""
     out = []
     pre = float(grasps.get("pregrasp_distance") or 0.08)
     for o in _objects(grasps):
         oid = int(o.get("id", -1))
-        h = o.get("handover")
-        if not isinstance(h, dict) or not h:
-            continue
-        where = f"objects[{oid}].handover"
-        try:
-            T_move = check_T(where + ".T_move", np.asarray(h["T_move"], dtype=np.float64))
-        except (KeyError, ValueError) as e:
-            raise InputError(Problem(path, where + ".T_move", f"missing or invalid ({e})", "re-run `bijcr grasp`")) from None
-        giver = h.get("giver") or {}
-        cw = giver.get("contact_width")
-        pick = _spec(dict(giver.get("pick", {}), contact_width=cw), "primary", path, where + ".giver.pick", pre)
-        tr = dict(giver.get("transfer", {}), width=pick.width, contact_width=cw)
-        if "T_b1_g" not in tr:
-            tr["T_b1_g"] = T_move @ pick.T_b1_g
-        gt = _spec(tr, "primary", path, where + ".giver.transfer", pre)
-        rec = _spec(h.get("receiver") or {}, "secondary", path, where + ".receiver", pre)
-        out.append(HandoverChoice(oid, pick, T_move, gt, rec, float(h.get("score", 0.0)),
-                                  {k: h[k] for k in ("gap",) if k in h}))
+        entries = [(f"objects[{oid}].handover", o.get("handover"))]
+        entries += [(f"objects[{oid}].handover_alternatives[{n}]", h)
+                    for n, h in enumerate(o.get("handover_alternatives") or [])]
+        for where, h in entries:
+            if isinstance(h, dict) and h:
+                out.append(_handover_choice(oid, h, path, where, pre))
     out.sort(key=lambda c: -c.score)
     return out
+
+
+def _handover_choice(oid: int, h: dict, path: str, where: str, pre: float) -> HandoverChoice:
+    """One grasps.json hand-over entry as a HandoverChoice."""
+    try:
+        T_move = check_T(where + ".T_move", np.asarray(h["T_move"], dtype=np.float64))
+    except (KeyError, ValueError) as e:
+        raise InputError(Problem(path, where + ".T_move", f"missing or invalid ({e})", "re-run `bijcr grasp`")) from None
+    giver = h.get("giver") or {}
+    cw = giver.get("contact_width")
+    pick = _spec(dict(giver.get("pick", {}), contact_width=cw), "primary", path, where + ".giver.pick", pre)
+    tr = dict(giver.get("transfer", {}), width=pick.width, contact_width=cw)
+    if "T_b1_g" not in tr:
+        tr["T_b1_g"] = T_move @ pick.T_b1_g
+    gt = _spec(tr, "primary", path, where + ".giver.transfer", pre)
+    rec = _spec(h.get("receiver") or {}, "secondary", path, where + ".receiver", pre)
+    return HandoverChoice(oid, pick, T_move, gt, rec, float(h.get("score", 0.0)), {k: h[k] for k in ("gap",) if k in h})
 
 
 def choose(cands: list, object_id: int | None, task: str, path: str, known_ids: list[int]):

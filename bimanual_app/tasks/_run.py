@@ -26,6 +26,8 @@ __all__ = ["TaskOptions", "TaskResult", "run_task"]
 
 ARMS = ("primary", "secondary")
 MAX_FALLBACK_OBJECTS = 2  # without --object: objects tried after the best-scoring one cannot be planned
+MAX_CANDIDATES = 4  # grasp candidates (pairs, hand-overs) planned per object
+MAX_PREVIEWS = 3  # plans previewed before the task gives up: a failed preview moves on to the next candidate
 OPEN_START = 0.0  # gripper width at the start when nothing is known (closed, as the Piper rests)
 
 
@@ -63,6 +65,18 @@ class TaskResult:
     timings: dict = field(default_factory=dict)
     preview: dict | None = None
     record: dict = field(default_factory=dict)
+
+
+@dataclass
+class _Attempt:
+    """A candidate that planned and validated, with its physics preview on the reconstruction."""
+
+    object_id: int
+    rank: int
+    plan: object
+    motion: object
+    timeline: dict
+    preview: object
 
 
 def _log(opts: TaskOptions, msg: str) -> None:
@@ -203,7 +217,7 @@ def _run_loaded(opts, scene, inputs, robot, staging: OutputDir, timings: dict) -
     try:
         # ---- plan: the chosen object's candidates in order; without --object, the next objects (by their
         # best score) when none of the first one's can be planned
-        t = time.perf_counter()
+        t_start = time.perf_counter()
         table = table_from_segments(inputs.points, inputs.labels, inputs.seg_extras)
         robot_pts = robot_points_mask(inputs.points, inputs.labels, np.stack([np.zeros(3), inputs.T_b1_b2[:3, 3]]),
                                       table.normal, -table.d)
@@ -214,7 +228,14 @@ def _run_loaded(opts, scene, inputs, robot, staging: OutputDir, timings: dict) -
         order = [oid]
         if opts.object_id is None:
             order += [o for o in dict.fromkeys(c.object_id for c in cands) if o != oid][:MAX_FALLBACK_OBJECTS]
-        plan, motion, tried = None, None, []
+        # each candidate that plans and validates is previewed on the reconstruction (never on the ground
+        # truth: that is only for judging); the first that passes is the task's plan. A failed preview moves
+        # on to the next candidate, up to MAX_PREVIEWS previews; if none passes, the first failed one is
+        # reported (and approved as 'fail').
+        motion, tried, attempts = None, [], []
+        chosen = failed = None  # _Attempt
+        t_preview = 0.0
+        select_record = opts.record and not opts.truth_objects
         for o in order:
             shapes, warns = estimated_shapes(inputs.points, inputs.labels, table, ids=[o])
             rec["warnings"] += warns
@@ -230,59 +251,87 @@ def _run_loaded(opts, scene, inputs, robot, staging: OutputDir, timings: dict) -
                 problems = motion_o.valid(q_start)
                 if problems:
                     return fail("start", "the arms' start configuration is in collision: " + "; ".join(problems[:3]))
+            motion = motion_o
             errors = []
-            for k, c in enumerate([c for c in cands if c.object_id == o][:4]):
+            for k, c in enumerate([c for c in cands if c.object_id == o][:MAX_CANDIDATES]):
+                if len(attempts) >= MAX_PREVIEWS:
+                    break
                 try:
                     if opts.task == "joint-grasp":
                         plan = plan_joint_grasp(motion_o, c, q_start, width_start, up=table.normal)
                     else:
                         plan = plan_handover(motion_o, c, q_start, width_start, pts_o, up=table.normal)
                     plan.info["candidate_rank"] = k
-                    break
+                    timeline = plan.timeline()
+                    try:  # the samples the preview and the hardware get
+                        motion_o.validate_timeline(timeline, plan.opening_spans())
+                    except PlanFailure as e:
+                        raise PlanFailure("validation", f"the assembled plan failed validation: {e.message}") from None
                 except PlanFailure as e:
                     errors.append(e)
                     _log(opts, f"candidate {k + 1} of object {o}: {e}")
-            motion = motion_o
-            if plan is not None:
-                if o != oid:
-                    first = tried[0][1]
-                    why = (f"object {o}, the next best: the best-scoring object {oid} could not be planned "
-                           f"({first.message})")
-                    oid = o
-                    res.object_id, res.object_reason = oid, why
-                    rec.update(object=oid, object_reason=why)
-                    _log(opts, why)
+                    continue
+                t = time.perf_counter()
+                _log(opts, f"object {o}, candidate {k + 1}: previewing {len(plan.phases)} phases "
+                           f"({plan.duration:.1f} s) in PyBullet")
+                pv = preview_plan(plan, inputs, robot, o, gui=opts.gui and not opts.truth_objects,
+                                  record=select_record, frame_size=tuple(opts.frame_size),
+                                  log=None if opts.quiet else (lambda m: _log(opts, m)))
+                t_preview += time.perf_counter() - t
+                att = _Attempt(o, k, plan, motion_o, timeline, pv)
+                attempts.append(att)
+                if pv.success:
+                    chosen = att
+                    break
+                failed = failed or att
+                errors.append(PlanFailure("preview", f"the physics preview failed: {pv.reason}"))
+                _log(opts, f"candidate {k + 1} of object {o}: the physics preview failed: {pv.reason}")
+            if chosen is not None or len(attempts) >= MAX_PREVIEWS:
+                if chosen is None:
+                    tried.append((o, errors[0], len(errors)))
                 break
             tried.append((o, errors[0], len(errors)) if errors else (o, PlanFailure("grasp", "no candidate"), 0))
-        timings["plan"] = time.perf_counter() - t
+        timings["plan"] = time.perf_counter() - t_start - t_preview
+        if attempts:
+            timings["preview"] = t_preview
         if motion is not None:
             rec["planning"] = {k: (round(v, 3) if isinstance(v, float) else v) for k, v in motion.stats.items()}
         if tried:
             rec["objects_tried"] = [{"object": o, "reason": e.message, "candidates": n} for o, e, n in tried]
-        if plan is None:
+        if attempts:
+            rec["previews_tried"] = [{"object": a.object_id, "candidate_rank": a.rank, "success": a.preview.success,
+                                      "reason": a.preview.reason} for a in attempts]
+        pick = chosen or failed
+        if pick is None:
             o, e, n_c = tried[0]
             stage = {"reach": "reach", "cartesian": "reach", "plan": "plan", "validation": "plan"}.get(e.stage, e.stage)
             more = f" ({n_c} grasp candidates tried)" if n_c > 1 else ""
             others = f"; {len(tried) - 1} other object(s) could not be planned either" if len(tried) > 1 else ""
             return fail(stage, f"no valid plan for object {o}{more}: {e.message}{others}")
-        timeline = plan.timeline()
-        try:
-            motion.validate_timeline(timeline, plan.opening_spans())  # the samples the preview and hardware get
-        except PlanFailure as e:
-            return fail("plan", f"the assembled plan failed validation: {e.message}")
-        timings["plan"] = time.perf_counter() - t
+        plan, motion, timeline = pick.plan, pick.motion, pick.timeline
+        if pick.object_id != oid:
+            first = tried[0][1]
+            why = (f"object {pick.object_id}, the next best: the best-scoring object {oid} "
+                   + ("failed its physics preview" if first.stage == "preview" else "could not be planned")
+                   + f" ({first.message})")
+            oid = pick.object_id
+            res.object_id, res.object_reason = oid, why
+            rec.update(object=oid, object_reason=why)
+            _log(opts, why)
         rec["plans"] = plan.summary()
         rec["plan"] = {"duration_s": round(plan.duration, 3),
                        "n_waypoints": {a: len(tr) for a, tr in timeline.items()}, "info": plan.info}
         save_plan(staging.path("plan.npz"), timeline)
 
-        # ---- physics preview
-        t = time.perf_counter()
-        _log(opts, f"previewing {len(plan.phases)} phases ({plan.duration:.1f} s) in PyBullet"
-                   + (" against the ground truth" if opts.truth_objects else ""))
-        pv = preview_plan(plan, inputs, robot, oid, truth=opts.truth_objects, gui=opts.gui, record=opts.record,
-                          frame_size=tuple(opts.frame_size), log=None if opts.quiet else (lambda m: _log(opts, m)))
-        timings["preview"] = time.perf_counter() - t
+        # ---- the physics preview reported (and approved): the chosen plan's on the reconstruction, or with
+        # --truth-objects the same plan in the ground-truth world
+        pv = pick.preview
+        if opts.truth_objects:
+            t = time.perf_counter()
+            _log(opts, f"previewing the chosen plan ({len(plan.phases)} phases) against the ground truth")
+            pv = preview_plan(plan, inputs, robot, oid, truth=True, gui=opts.gui, record=opts.record,
+                              frame_size=tuple(opts.frame_size), log=None if opts.quiet else (lambda m: _log(opts, m)))
+            timings["preview_truth"] = time.perf_counter() - t
         res.preview = pv.to_json()
         rec["preview"] = res.preview
         if pv.recorder is not None and pv.recorder.frames:
@@ -301,7 +350,8 @@ def _run_loaded(opts, scene, inputs, robot, staging: OutputDir, timings: dict) -
             _log(opts, f"the same plan against the ground truth: {'success' if pvt.success else 'failure'} - "
                        f"{pvt.reason}")
         if not pv.success:
-            return fail("preview", f"the physics preview failed: {pv.reason}")
+            more = f" ({len(attempts)} plans previewed, none passed)" if len(attempts) > 1 else ""
+            return fail("preview", f"the physics preview failed: {pv.reason}{more}")
         res.success, res.reason = True, f"preview passed: {pv.reason}"
         rec.update(success=True, reason=res.reason)
 
