@@ -48,6 +48,10 @@ class SamplerParams:
     ray_radius: how close to the ray from p1 a point counts as on it.
     min_width: narrowest contact width the fingers can resolve.
     clearance: wanted free space between each finger and the object when open; ``min_clearance`` is the least accepted.
+    wide_clearance: where the swept gripper stays free of the scene that far open (capped by the stroke), it
+        opens that far past the object on each side instead (else halfway there): the object's place in the
+        cloud is off by the calibration's error (5-15 mm on the bench's pipeline clouds), and the coupled
+        fingers centre it as they close. 0 turns it off.
     scene_margin: least distance between the swept gripper and the rest of the scene (table, neighbours).
     own_resolution: voxel size of the object's own octree (below ``min_clearance``).
     min_points: object points needed in the closing region.
@@ -66,6 +70,7 @@ class SamplerParams:
     ray_radius: float = 0.004
     min_width: float = 0.006
     clearance: float = 0.010
+    wide_clearance: float = 0.020
     min_clearance: float = 0.003
     scene_margin: float = 0.003  # the task planner's contact margin (see PlanParams.octree_resolution)
     own_resolution: float = 0.002
@@ -334,6 +339,7 @@ def sample_grasps(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
     gs = GraspSet(geo.id, T_best[keep], width[keep], cwidth[keep], depth[keep], np.zeros(len(keep)))
     gs = score_grasps(gs, geo, support, gripper, collider, others, params)
     gs = _open_towards_unseen(gs, gripper, collider, own, others, params)
+    gs = _open_wider(gs, gripper, collider, own, others, params)
     # the fingers' actual contact bands must face each other (median normal within ``reject_friction``'s
     # cone of the closing axis): the pair that seeded a candidate may not be what the fingers touch once
     # the frame is centred and pushed in
@@ -369,6 +375,24 @@ def _open_towards_unseen(gs: GraspSet, gripper: GripperModel, collider: GripperC
     gs.width[one[free]] = w[free]
     return gs
 
+
+def _open_wider(gs: GraspSet, gripper: GripperModel, collider: GripperCollider, own: SceneOctree,
+                others: SceneOctree, params: SamplerParams) -> GraspSet:
+    """Grasps opened ``wide_clearance`` past the object on each side (capped by the stroke), else halfway
+    between that and ``clearance``, where the swept gripper stays clear of the object and the scene at that
+    opening; the others keep their width. The frame does not move (the contacts stay centred)."""
+    if params.wide_clearance <= params.clearance or len(gs) == 0:
+        return gs
+    for c in (params.wide_clearance, 0.5 * (params.wide_clearance + params.clearance)):
+        w = np.minimum(gs.contact_width + 2 * c, gripper.max_width)
+        todo = np.nonzero(w > gs.width + 1e-4)[0]
+        if len(todo) == 0:
+            continue
+        free = ~collider.collides(own, gs.T_b1_g[todo], w[todo], swept=True)
+        free[free] = ~collider.collides(others, gs.T_b1_g[todo[free]], w[todo[free]], swept=True,
+                                        margin=params.scene_margin)
+        gs.width[todo[free]] = w[todo[free]]
+    return gs
 
 def _dedupe(gs: GraspSet, max_keep: int, pos_tol: float = 0.004, ang_tol: float = np.deg2rad(8)) -> GraspSet:
     """Best-first, drop grasps within ``pos_tol`` and ``ang_tol`` of a better one (same or flipped about z)."""

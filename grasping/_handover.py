@@ -37,7 +37,8 @@ from ._arms import Arm, ArmGrasps, TwoArmCheck, reachable_grasps
 from ._collision import GripperCollider, grippers_collide, grippers_distance
 from ._objects import ObjectGeometry, Support
 
-__all__ = ["HandoverParams", "Handover", "handover_givers", "plan_handover", "plan_handovers", "catch_probability",
+__all__ = ["HandoverParams", "Handover", "handover_givers", "plan_handover", "plan_handovers", "release_width",
+           "catch_probability",
            "giver_hold_probability"]
 
 
@@ -72,6 +73,9 @@ class HandoverParams:
     receiver_clearance: how far the receiver's fingers open past the object on each side (within the stroke;
         a pick opens 1 cm): at the transfer pose only the giver is near, and the spare opening is what absorbs
         the calibration error below.
+    release_clearance: the giver lets go at the transfer pose opening this far past the object on each side
+        (no wider than it picked: a pick may open wider, for the object's position error on the table); its
+        retreat sweep is checked at that opening.
     alternatives: hand-overs kept per object (:func:`plan_handovers`): the best first, then ones with another
         giver grasp or transfer pose, for the task to fall back on when one cannot be planned or previewed.
     b2b_sigma_m, b2b_sigma_rad: 1-sigma error of the calibrated ``T_b1_b2`` (translation per axis, rotation)
@@ -104,6 +108,7 @@ class HandoverParams:
     b2b_sigma_m: float = 0.007
     b2b_sigma_rad: float = 0.012
     alternatives: int = 3
+    release_clearance: float = 0.010
 
 
 @dataclass
@@ -140,6 +145,14 @@ class Handover:
     margin: float = 0.0
     sigma: float = 0.0
     givers: ArmGrasps | None = None  # the giver candidates ``giver_index`` indexes (None: the primary's reach set)
+    giver_release_width: float = 0.0  # the giver's opening when it lets go (m; :func:`release_width`)
+
+
+def release_width(width: np.ndarray, contact_width: np.ndarray, params: HandoverParams) -> np.ndarray:
+    """The giver's opening (m, same shape) when it lets go: ``release_clearance`` past the object on each side,
+    no wider than it opened to pick (``width``)."""
+    return np.minimum(np.asarray(width, dtype=np.float64),
+                      np.asarray(contact_width, dtype=np.float64) + 2 * params.release_clearance)
 
 
 def catch_probability(margin: np.ndarray, sigma: np.ndarray) -> np.ndarray:
@@ -257,7 +270,8 @@ def handover_givers(picks: GraspSet, free: GraspSet, reached: ArmGrasps, prim: A
     ``params.givers`` the primary reaches are returned: those already in ``reached`` (its reachable pick grasps) as they are,
     the others through its reach filter (at most ``params.giver_tries`` checks).
     """
-    clear = [_clear_receivers(collider, picks.T_b1_g[i], float(picks.width[i]), float(picks.contact_width[i]),
+    w_release = release_width(picks.width, picks.contact_width, params)
+    clear = [_clear_receivers(collider, picks.T_b1_g[i], float(w_release[i]), float(picks.contact_width[i]),
                               free, params.gap) for i in range(len(picks))]
     n = np.array([len(c) for c in clear], dtype=int)
     cand = np.nonzero(n > 0)[0]
@@ -355,8 +369,9 @@ def _search(geo, support, giver, free, arms, collider, check, params, clear, obs
     for gi in range(min(params.givers, len(giver))):
         G = giver.grasps.T_b1_g[gi]
         clear_g = (clear[gi] if clear is not None else
-                   _clear_receivers(collider, G, float(giver.grasps.width[gi]), float(giver.grasps.contact_width[gi]),
-                                    free, params.gap))
+                   _clear_receivers(collider, G, float(release_width(giver.grasps.width[gi], giver.grasps.contact_width[gi],
+                                                                     params)),
+                                    float(giver.grasps.contact_width[gi]), free, params.gap))
         stats["clear_receivers"] += len(clear_g)
         if not len(clear_g):
             continue
@@ -428,5 +443,6 @@ def _search(geo, support, giver, free, arms, collider, check, params, clear, obs
             score = 0.5 * (float(giver.grasps.score[gi]) + float(free.score[k])) * c * hold
             yield Handover(move, move[:3, :3] @ geo.centre + move[:3, 3], gi, Gt, rg.q[0], w_closed, receiver,
                            gap, score, dict(stats), c, float(margin[order[n]]),
-                           float(_transfer_sigma(params, sec.T_b1_b, R_used[:3, 3])[0]), giver)
+                           float(_transfer_sigma(params, sec.T_b1_b, R_used[:3, 3])[0]), giver,
+                           float(release_width(giver.grasps.width[gi], w_closed, params)))
             break  # one receiver per (giver, transfer pose): the next alternative is another pose

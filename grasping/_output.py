@@ -116,7 +116,7 @@ def _handover_dict(h, op, rank_of: dict, T_b1_b2) -> dict:
                   "pick": {"T_b1_g": giver.grasps.T_b1_g[gi], "q": giver.q[gi], "q_pregrasp": giver.q_pre[gi],
                            "width": float(giver.grasps.width[gi])},
                   "transfer": {"T_b1_g": h.giver_T_b1_g, "T_b2_g": _in_b2(h.giver_T_b1_g, T_b1_b2), "q": h.giver_q},
-                  "contact_width": h.giver_width},
+                  "contact_width": h.giver_width, "release_width": h.giver_release_width},
         "receiver": {"arm": "secondary", "T_b1_g": h.receiver["T_b1_g"],
                      "T_b2_g": _in_b2(h.receiver["T_b1_g"], T_b1_b2), "width": h.receiver["width"],
                      "contact_width": h.receiver["contact_width"], "depth": h.receiver["depth"],

@@ -119,7 +119,7 @@ def test_handover_alternatives_differ_from_the_best_and_are_written():
 def test_handover_giver_leaves_the_receiver_room():
     """The giver is not the best single-arm pick (centred, deep): of the pick grasps, the first giver tried
     is one that leaves the most free-space receiver grasps clear of its fingers."""
-    from grasping._handover import _clear_receivers
+    from grasping._handover import _clear_receivers, release_width
 
     P, L = make_cloud([Obj("box", (0.3, 0.2), (0.05, 0.06, 0.07), 0.3)])
     plan = plan_grasps(scene_cloud(P, L), arms=accept_all_arms(T12), T_b1_b2=T12, params=PlanParams(retry_factor=1))
@@ -127,7 +127,10 @@ def test_handover_giver_leaves_the_receiver_room():
     assert op.handover is not None, op.notes
     col = GripperCollider(load_gripper())
     gap = plan.params.handover_params.gap
-    n = np.array([len(_clear_receivers(col, op.grasps.T_b1_g[i], op.grasps.width[i], op.grasps.contact_width[i],
+    # the giver lets go opening its release width (it may have picked wider)
+    w_rel = release_width(op.grasps.width, op.grasps.contact_width, plan.params.handover_params)
+    assert np.all(w_rel <= op.grasps.width + 1e-12)
+    n = np.array([len(_clear_receivers(col, op.grasps.T_b1_g[i], w_rel[i], op.grasps.contact_width[i],
                                        op.free_grasps, gap)) for i in range(len(op.grasps))])
     givers = op.handover.givers
     assert len(givers) and np.all(n[givers.index] > 0)
@@ -136,7 +139,7 @@ def test_handover_giver_leaves_the_receiver_room():
     assert op.handover.tried["clear_receivers"] > 0
     # the receiver's grasp is one of those the giver leaves clear
     assert op.handover.receiver["index"] in _clear_receivers(col, op.grasps.T_b1_g[givers.index[op.handover.giver_index]],
-                                                             op.grasps.width[givers.index[op.handover.giver_index]],
+                                                             w_rel[givers.index[op.handover.giver_index]],
                                                              op.grasps.contact_width[givers.index[op.handover.giver_index]],
                                                              op.free_grasps, gap)
     # and the object rises at least min_rise above where it lay

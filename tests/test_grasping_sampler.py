@@ -107,3 +107,26 @@ def test_collider_detects_overlap():
     on_the_way = T[:3, :3] @ behind + T[:3, 3]
     assert not col.collides(SceneOctree(on_the_way[None], 0.002), T[None], np.array([w]))[0]
     assert col_swept.collides(SceneOctree(on_the_way[None], 0.002), T[None], np.array([w]))[0]
+
+
+def test_grasps_open_wide_where_free_and_narrow_beside_a_neighbour():
+    """A box alone: the fingers open ``wide_clearance`` past it on each side (the object's position in the
+    cloud is off by the calibration error). With a neighbour 3.2 cm away across one face, the grasps that
+    close across that face open only as far as the neighbour leaves room (never into it)."""
+    alone = [Obj("box", (0.3, 0.0), (0.04, 0.04, 0.06))]
+    P, L = make_cloud(alone)
+    g, sup, geo, gs, st = _sample(P, L, 0)
+    p = SamplerParams()
+    assert len(gs) > 0, st
+    want = np.minimum(gs.contact_width + 2 * p.wide_clearance, g.max_width)
+    assert np.mean(np.abs(gs.width - want) < 1e-6) > 0.8
+    off, _, _, gs_off, _ = _sample(P, L, 0, wide_clearance=0.0)
+    assert np.allclose(gs_off.width, np.minimum(gs_off.contact_width + 2 * p.clearance, g.max_width))
+    pair = alone + [Obj("box", (0.3 + 0.04 + 0.032, 0.0), (0.04, 0.1, 0.09))]
+    P, L = make_cloud(pair)
+    g, sup, geo, gs, st = _sample(P, L, 0)
+    nb = P[L == 1]
+    across_x = np.abs(gs.T_b1_g[:, :3, 1] @ np.array([1.0, 0.0, 0.0])) > 0.9
+    assert across_x.any() and np.all(gs.width[across_x] < gs.contact_width[across_x] + 2 * p.wide_clearance - 1e-6)
+    for i in range(len(gs)):
+        assert not points_in_gripper(g, gs.T_b1_g[i], gs.width[i], nb, margin=0.001).any()

@@ -161,7 +161,8 @@ def _handover_choice(oid: int, h: dict, path: str, where: str, pre: float) -> Ha
     giver = h.get("giver") or {}
     cw = giver.get("contact_width")
     pick = _spec(dict(giver.get("pick", {}), contact_width=cw), "primary", path, where + ".giver.pick", pre)
-    tr = dict(giver.get("transfer", {}), width=pick.width, contact_width=cw)
+    # the giver lets go at the transfer pose opening ``release_width`` (grasps.json; else as wide as it picked)
+    tr = dict(giver.get("transfer", {}), width=giver.get("release_width", pick.width), contact_width=cw)
     if "T_b1_g" not in tr:
         tr["T_b1_g"] = T_move @ pick.T_b1_g
     gt = _spec(tr, "primary", path, where + ".giver.transfer", pre)

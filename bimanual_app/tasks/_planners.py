@@ -355,6 +355,7 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
     plan = TaskPlan({a: np.asarray(q, float) for a, q in q_start.items()}, dict(width_start))
     pick, gt, rec = choice.pick, choice.giver_transfer, choice.receiver
     wg, wr = pick.width, rec.width
+    wl = min(gt.width, wg)  # the giver lets go opening this far (no wider than it picked)
     cw_g = pick.contact_width or 0.0
     cw_r = rec.contact_width or 0.0
     plan.info = {"score": choice.score, **choice.info, "T_move": choice.T_move,
@@ -453,7 +454,7 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
 
     # 9-11. the primary lets go and backs off; the secondary holds (checked)
     q, _ = plan.end_state()
-    plan.add(Phase("release", {"primary": _still(q["primary"], CLOSED, wg)}, "primary opens", "gripper"))
+    plan.add(Phase("release", {"primary": _still(q["primary"], CLOSED, wl)}, "primary opens", "gripper"))
     q, _ = plan.end_state()
     held_pts = object_points @ choice.T_move[:3, :3].T + choice.T_move[:3, 3]
     held = ("secondary", q["secondary"], held_pts)
@@ -465,9 +466,9 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
         for dist in np.arange(gt.pre_dist, 0.045, -0.01):
             back = translate_along(gt.T_b1_g, direction, dist)
             try:
-                with motion.context("cut", openings={"primary": wg, "secondary": cw_r}):
+                with motion.context("cut", openings={"primary": wl, "secondary": cw_r}):
                     tr = motion.cartesian({"primary": (gt.T_b1_g, back)}, q)["primary"]
-                with motion.context("attached", openings={"primary": wg, "secondary": cw_r}, attach=held):
+                with motion.context("attached", openings={"primary": wl, "secondary": cw_r}, attach=held):
                     why = motion.valid({"primary": tr.q[-1], "secondary": q["secondary"]})
                 if why:
                     raise PlanFailure("validation", f"after backing off {dist * 100:.0f} cm ({how}) the primary "
@@ -479,14 +480,14 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
             break
     if tr is None:
         raise err
-    plan.add(Phase("retreat", {"primary": _jt(tr.times, tr.q, wg)},
+    plan.add(Phase("retreat", {"primary": _jt(tr.times, tr.q, wl)},
                    f"primary backs off {dist * 100:.0f} cm ({how})", "cartesian"))
     at.append("home")
     # the primary goes back to its start; the object, now in the secondary's gripper, is an obstacle
     q, _ = plan.end_state()
-    with motion.context("attached", openings={"primary": wg, "secondary": cw_r}, attach=held):
+    with motion.context("attached", openings={"primary": wl, "secondary": cw_r}, attach=held):
         tr = motion.plan_free(["primary"], q, [{"primary": q_start["primary"]}])["primary"]
-    plan.add(Phase("home", {"primary": _jt(tr.times, tr.q, wg)}, "primary back to its start pose", "ompl"))
+    plan.add(Phase("home", {"primary": _jt(tr.times, tr.q, wl)}, "primary back to its start pose", "ompl"))
     q, _ = plan.end_state()
     plan.add(Phase("hold", {"secondary": _jt([0.0, HOLD_S], np.stack([q["secondary"]] * 2), CLOSED)},
                    f"secondary holds the object alone for {HOLD_S:g} s", "hold", check="handover"))
