@@ -26,7 +26,7 @@ from ._arms import ArmGrasps, TwoArmCheck
 from ._collision import GripperCollider, grippers_collide
 from ._objects import ObjectGeometry, Support
 
-__all__ = ["JointPair", "joint_pairs"]
+__all__ = ["JointPair", "joint_pairs", "spread_order"]
 
 
 @dataclass
@@ -48,11 +48,31 @@ def _contact_centres(ag: ArmGrasps) -> np.ndarray:
     return g.T_b1_g[:, :3, 3] - g.T_b1_g[:, :3, 2] * g.depth[:, None]
 
 
+def spread_order(points: np.ndarray, groups: np.ndarray, min_dist: float) -> np.ndarray:
+    """(N,) an order of N candidates listed best first (``points`` (N, 3), ``groups`` (N,) or (N, k) labels such
+    as a push contact's face): within each group, first those at least ``min_dist`` m from every one taken
+    before them (greedily, best first), then the rest, best first. The best candidate stays first; the
+    next ones are other places on the object, not the same place again."""
+    P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    G = np.asarray(groups).reshape(len(P), -1)
+    first, rest = [], []
+    for i in range(len(P)):
+        same = [j for j in first if np.array_equal(G[j], G[i])]
+        if all(np.linalg.norm(P[i] - P[j]) >= min_dist for j in same):
+            first.append(i)
+        else:
+            rest.append(i)
+    return np.array(first + rest, dtype=int)
+
+
 def joint_pairs(geo: ObjectGeometry, support: Support, primary: ArmGrasps, secondary: ArmGrasps,
                 collider: GripperCollider, check: TwoArmCheck | None, max_pairs: int = 5, gap: float = 0.02,
                 max_imbalance: float = 0.25, max_checks: int = 60, max_height_gap: float = 0.015,
-                min_spread: float = 0.4) -> tuple[list[JointPair], dict]:
-    """Balanced, reachable, collision-free pairs (best first) from each arm's reachable grasps of one kind."""
+                min_spread: float = 0.4, distinct: float = 0.03) -> tuple[list[JointPair], dict]:
+    """Balanced, reachable, collision-free pairs from each arm's reachable grasps of one kind: the best
+    first, then the pairs whose two contacts are not both within ``distinct`` m of an earlier pair's (a
+    pair that fails for where it holds the object is not followed by the same pair again), then the rest;
+    at most ``max_pairs``."""
     stats = {"candidates": 0, "balanced": 0, "grippers_apart": 0, "arms_apart": 0}
     if len(primary) == 0 or len(secondary) == 0:
         return [], stats
@@ -105,6 +125,7 @@ def joint_pairs(geo: ObjectGeometry, support: Support, primary: ArmGrasps, secon
             cand.append((score, i, j, imb, sep))
     cand.sort(key=lambda c: -c[0])
     out: list[JointPair] = []
+    similar: list[JointPair] = []
     for score, i, j, imb, sep in cand[:max_checks]:
         w1, w2 = primary.grasps.width[i], secondary.grasps.width[j]
         if grippers_collide(collider, primary.grasps.T_b1_g[i], w1, secondary.grasps.T_b1_g[j], w2, margin=gap,
@@ -119,7 +140,11 @@ def joint_pairs(geo: ObjectGeometry, support: Support, primary: ArmGrasps, secon
             if not ok:
                 continue
         stats["arms_apart"] += 1
-        out.append(JointPair(kind, i, j, imb, sep, float(score)))
+        pair = JointPair(kind, i, j, imb, sep, float(score))
+        near = any(np.linalg.norm(c1[i] - c1[p.i_primary]) < distinct and np.linalg.norm(c2[j] - c2[p.i_secondary]) < distinct
+                   for p in out)
+        (similar if near else out).append(pair)
         if len(out) >= max_pairs:
             break
-    return out, stats
+    stats["distinct"] = len(out)
+    return (out + similar)[:max_pairs], stats

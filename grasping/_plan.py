@@ -31,7 +31,7 @@ from ._collision import GripperCollider, SceneOctree
 from ._gripper import GripperModel
 from ._handover import Handover, HandoverParams, handover_givers, plan_handovers
 from ._inputs import SceneCloud
-from ._joint import JointPair, joint_pairs
+from ._joint import JointPair, joint_pairs, spread_order
 from ._objects import ObjectGeometry, Support, check_graspable, closed_geometry, estimate_support, object_geometry
 from ._push import PushParams, push_contacts
 
@@ -49,6 +49,9 @@ class PlanParams:
         is never refused by the task's check of the same straight approach. With 3 mm / 2 mm, fingers that
         pass 3-5 mm over the table were accepted here and then touched the task's map.
     reach_tries / reach_want: grasps checked by each arm's reach filter, and enough reachable ones to stop.
+    push_spread: push contacts are checked for reach best first, but first those this far (m) from every
+        better one on the same face (``spread_order``): the reachable contacts, and the pairs of them, are
+        then several places on each face, not one place found again a few millimetres away.
     large_extent: objects longer than this (horizontally) need two arms.
     density, payload: mass estimate (box volume x density) and the most one arm lifts.
     min_object_points: fewer points than this is an empty segment.
@@ -68,6 +71,7 @@ class PlanParams:
     octree_resolution: float = 0.005
     reach_tries: int = 40
     push_tries_per_face: int = 30
+    push_spread: float = 0.03
     push_want_per_face: int = 4
     reach_want: int = 10
     large_extent: float = 0.25
@@ -276,6 +280,8 @@ def _joint(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: 
     geo = plan.geometry
     plan.stats["push"] = {}
     push = push_contacts(geo, support, gripper, collider, others, params.push, plan.stats["push"])
+    if len(push) and params.push_spread > 0:  # the reach budget goes to several places on each face
+        push = push.take(spread_order(push.extra["contact"], push.extra["face"], params.push_spread))
     plan.push = push
     lifting = {name: lifting_arm(arm, support.up, params.joint_lift_check) for name, arm in arms.items()}
     rounds = [lifting, arms] if params.joint_lift_check > 0 and all(lifting.values()) else [arms]
@@ -284,10 +290,11 @@ def _joint(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: 
         plan.stats["joint_lift_checked"] = r == 0 and len(rounds) == 2
         if pairs:
             break
-    pairs.sort(key=lambda p: -p.score)  # the best few of each kind, best first
-    plan.joint = ([p for p in pairs if p.kind == "push"][: params.max_joint_pairs]
-                  + [p for p in pairs if p.kind == "pinch"][: params.max_joint_pairs])
-    plan.joint.sort(key=lambda p: -p.score)
+    # the best few of each kind, in joint_pairs' order (the best, then pairs holding the object elsewhere);
+    # the kind with the better best pair first
+    kinds = [[p for p in pairs if p.kind == k][: params.max_joint_pairs] for k in ("push", "pinch")]
+    kinds.sort(key=lambda ps: -ps[0].score if ps else np.inf)
+    plan.joint = kinds[0] + kinds[1]
     if plan.mode == "joint" and not plan.joint:
         plan.notes.append("no balanced two-arm grasp that both arms reach without colliding"
                           f" ({len(push)} push contacts on its faces)")

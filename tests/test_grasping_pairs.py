@@ -216,3 +216,29 @@ def test_handover_receiver_closes_across_the_side_that_leaves_it_most_margin():
     p = plan.params.handover_params
     d = np.linalg.norm(h.receiver["T_b1_g"][:3, 3] - T12[:3, 3])
     assert abs(h.sigma - np.hypot(p.b2b_sigma_m, p.b2b_sigma_rad * d)) < 1e-9
+
+
+def test_spread_order_puts_other_places_before_near_copies():
+    from grasping._joint import spread_order
+
+    # best first: a cluster of three within 1 cm on face A, one 5 cm away on A, one on face B
+    P = np.array([[0.0, 0.0, 0.0], [0.005, 0.0, 0.0], [0.0, 0.008, 0.0], [0.05, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    faces = np.array([[0, 1], [0, 1], [0, 1], [0, 1], [1, -1]])
+    assert spread_order(P, faces, 0.03).tolist() == [0, 3, 4, 1, 2]
+    assert spread_order(P, faces, 0.0).tolist() == [0, 1, 2, 3, 4]
+
+
+def test_joint_pairs_list_other_places_before_near_copies(large_plan):
+    """After the best push pair come pairs whose contacts are elsewhere on the faces (when the arms reach
+    such contacts), before near copies of pairs already listed."""
+    op = large_plan.objects[0]
+    pairs = [p for p in op.joint if p.kind == "push"]
+    assert len(pairs) >= 2
+
+    def contacts(pair):
+        a, b = op.pair_grasps(pair)
+        return a.grasps.extra["contact"][pair.i_primary], b.grasps.extra["contact"][pair.i_secondary]
+
+    (a0, b0), (a1, b1) = contacts(pairs[0]), contacts(pairs[1])
+    assert max(np.linalg.norm(a1 - a0), np.linalg.norm(b1 - b0)) >= 0.03, "the second pair holds where the first does"
+    assert pairs[0].score == max(p.score for p in pairs)

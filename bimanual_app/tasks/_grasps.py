@@ -113,7 +113,9 @@ def _objects(grasps: dict) -> list[dict]:
 
 
 def joint_candidates(grasps: dict, path: str) -> list[JointChoice]:
-    """Every joint pair of every object in grasps.json, best first."""
+    """Every joint pair of every object in grasps.json: the objects by their best pair's score, each object's
+    pairs in grasps.json's order (the grasping stage puts the best first, then pairs that hold the object
+    elsewhere, then near copies of those: a task that falls back to the next pair gets another place)."""
     out = []
     pre = float(grasps.get("pregrasp_distance") or 0.08)
     for o in _objects(grasps):
@@ -131,8 +133,11 @@ def joint_candidates(grasps: dict, path: str) -> list[JointChoice]:
                                    _spec(s, "secondary", path, where + ".secondary", pre),
                                    float(pair.get("score", 0.0)), kind,
                                    {k: pair[k] for k in ("imbalance", "separation") if k in pair}))
-    out.sort(key=lambda c: -c.score)
-    return out
+    best: dict[int, float] = {}
+    for c in out:
+        best[c.object_id] = max(best.get(c.object_id, -np.inf), c.score)
+    order = sorted(range(len(out)), key=lambda n: (-best[out[n].object_id], n))
+    return [out[n] for n in order]
 
 
 def handover_candidates(grasps: dict, path: str) -> list[HandoverChoice]:
