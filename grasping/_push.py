@@ -221,6 +221,13 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
                 hit_obj = ~free.copy()
             free[free] = ~collider.collides(others, Tk[free], wv[free], swept=False, margin=params.scene_margin)
         path_ok[:, r] = free
+    # ... and at the contact itself (not held off) and pressed ``press`` past it: the task's straight moves
+    # end there (the approach, then the squeeze along the face's inward normal), checked against its map
+    # with its margin; a fingertip that sits low beside the face or by a neighbour touches it there
+    T_in = T.copy()
+    T_in[:, :3, 3] -= params.press * nrm
+    for Tk in (T, T_in):
+        path_ok &= ~collider.collides(others, Tk, wv, swept=False, margin=params.scene_margin)[:, None]
     free = path_ok.any(axis=1)
     st["hits_object"] = int(hit_obj.sum())
     st["hits_scene"] = int((~free & ~hit_obj).sum())

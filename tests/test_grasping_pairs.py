@@ -242,3 +242,26 @@ def test_joint_pairs_list_other_places_before_near_copies(large_plan):
     (a0, b0), (a1, b1) = contacts(pairs[0]), contacts(pairs[1])
     assert max(np.linalg.norm(a1 - a0), np.linalg.norm(b1 - b0)) >= 0.03, "the second pair holds where the first does"
     assert pairs[0].score == max(p.score for p in pairs)
+
+
+def test_push_contacts_are_clear_of_the_scene_where_the_task_moves_them():
+    """The task's straight moves end at the push contact (the approach) and ``press`` past it (the squeeze),
+    checked against its map with its margin: every push contact is clear of the rest of the scene at both,
+    beside a neighbour that stands 5 mm from one face."""
+    from grasping import PushParams, SceneOctree, estimate_support, object_geometry, push_contacts
+
+    objs = [Obj("box", (0.3, 0.0), (0.16, 0.32, 0.10), 0.0),
+            Obj("box", (0.3 + 0.08 + 0.005 + 0.02, 0.05), (0.04, 0.04, 0.06), 0.0)]  # 5 mm off the +x face
+    P, L = make_cloud(objs, table_size=(0.8, 0.8))
+    sup = estimate_support(P, L)
+    geo = object_geometry(0, P[L == 0], sup, background=P[L < 0])
+    g = load_gripper()
+    col = GripperCollider(g)
+    others = SceneOctree(P[L != 0], PlanParams().octree_resolution)
+    pp = PushParams()
+    push = push_contacts(geo, sup, g, col, others, pp)
+    assert len(push) > 20
+    pressed = push.T_b1_g.copy()
+    pressed[:, :3, 3] += pp.press * push.extra["squeeze"]
+    for T in (push.T_b1_g, pressed):
+        assert not col.collides(others, T, push.width, swept=False, margin=pp.scene_margin).any()
