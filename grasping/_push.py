@@ -59,6 +59,10 @@ class PushParams:
     face_rms: a face whose points fit a plane within this RMS (m) counts as planar: a fingertip may land on
         it between seen points (inside the range they span) with the whole face's normal.
     friction: fingertip friction coefficient (the tilt and normals must stay in its cone).
+    cut_radius, contact_margin: the contact and the contact pressed ``press`` past the face must be clear of
+        the scene without what lies within ``cut_radius`` of the object, by ``contact_margin``: the map and
+        margin the task checks its approach and squeeze with (``bimanual_app.tasks``: ``TaskMotion``'s
+        ``cut_radius``, ``CONTACT_MARGIN``).
     """
 
     rolls: tuple[float, ...] = (0.0, np.pi / 2, np.pi / 4, -np.pi / 4)
@@ -76,6 +80,19 @@ class PushParams:
     friction: float = 0.5
     scene_margin: float = 0.004
     approach: float = 0.09
+    cut_radius: float = 0.015
+    contact_margin: float = 0.003
+
+
+def _without_near(octree: SceneOctree, points: np.ndarray, radius: float) -> SceneOctree:
+    """``octree``'s points farther than ``radius`` from every one of ``points`` (M, 3), as a new octree."""
+    from scipy.spatial import cKDTree
+
+    Q = octree.points
+    if not len(Q) or not len(points):
+        return octree
+    d, _ = cKDTree(np.asarray(points, dtype=np.float64)).query(Q, k=1, distance_upper_bound=radius)
+    return SceneOctree(Q[~np.isfinite(d)], octree.resolution)
 
 
 def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, collider: GripperCollider,
@@ -211,23 +228,31 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
     retreats = np.stack([nrm, -T[:, :3, 2], np.broadcast_to(up, nrm.shape)], axis=1)  # (n, 3, 3)
     path_ok = np.zeros((len(T), retreats.shape[1]), dtype=bool)
     hit_obj = np.zeros(len(T), dtype=bool)
+    # the task's own check of the same moves: its approach comes in along the way in right up to the contact
+    # (not held off), then its squeeze presses ``press`` past the face along the inward normal; it checks
+    # them against the scene without what lies within ``cut_radius`` of the object, with its contact margin.
+    # Held off by the standoff alone, a fingertip sliding in low beside the face or past a neighbour's edge
+    # was accepted here and then touched the task's map in the last millimetres.
+    contact_map = _without_near(others, P, params.cut_radius)
+    T_in = T.copy()
+    T_in[:, :3, 3] -= params.press * nrm
+    at_contact = ~collider.collides(contact_map, T, wv, swept=False, margin=params.contact_margin)
+    at_contact[at_contact] = ~collider.collides(contact_map, T_in[at_contact], wv[at_contact], swept=False,
+                                                margin=params.contact_margin)
     for r in range(retreats.shape[1]):
-        free = np.ones(len(T), dtype=bool)
+        free = at_contact.copy()
         for dist in np.linspace(0.0, params.approach, 4):
             Tk = T_off.copy()
             Tk[:, :3, 3] += dist * retreats[:, r]
             free[free] = ~collider.collides(own, Tk[free], wv[free], swept=False)
             if r == 0 and dist == 0.0:
-                hit_obj = ~free.copy()
+                hit_obj = ~free.copy() & at_contact
             free[free] = ~collider.collides(others, Tk[free], wv[free], swept=False, margin=params.scene_margin)
+        for dist in np.linspace(0.0, params.approach, 10)[1:]:
+            Tk = T.copy()
+            Tk[:, :3, 3] += dist * retreats[:, r]
+            free[free] = ~collider.collides(contact_map, Tk[free], wv[free], swept=False, margin=params.contact_margin)
         path_ok[:, r] = free
-    # ... and at the contact itself (not held off) and pressed ``press`` past it: the task's straight moves
-    # end there (the approach, then the squeeze along the face's inward normal), checked against its map
-    # with its margin; a fingertip that sits low beside the face or by a neighbour touches it there
-    T_in = T.copy()
-    T_in[:, :3, 3] -= params.press * nrm
-    for Tk in (T, T_in):
-        path_ok &= ~collider.collides(others, Tk, wv, swept=False, margin=params.scene_margin)[:, None]
     free = path_ok.any(axis=1)
     st["hits_object"] = int(hit_obj.sum())
     st["hits_scene"] = int((~free & ~hit_obj).sum())

@@ -246,12 +246,12 @@ def test_joint_pairs_list_other_places_before_near_copies(large_plan):
 
 def test_push_contacts_are_clear_of_the_scene_where_the_task_moves_them():
     """The task's straight moves end at the push contact (the approach) and ``press`` past it (the squeeze),
-    checked against its map with its margin: every push contact is clear of the rest of the scene at both,
-    beside a neighbour that stands 5 mm from one face."""
+    checked against its map (the scene without what lies within 1.5 cm of the object) with its contact
+    margin: every push contact is clear of that map at both, beside a neighbour 2 cm from one face."""
     from grasping import PushParams, SceneOctree, estimate_support, object_geometry, push_contacts
 
     objs = [Obj("box", (0.3, 0.0), (0.16, 0.32, 0.10), 0.0),
-            Obj("box", (0.3 + 0.08 + 0.005 + 0.02, 0.05), (0.04, 0.04, 0.06), 0.0)]  # 5 mm off the +x face
+            Obj("box", (0.3 + 0.08 + 0.02 + 0.02, 0.05), (0.04, 0.04, 0.06), 0.0)]  # 2 cm off the +x face
     P, L = make_cloud(objs, table_size=(0.8, 0.8))
     sup = estimate_support(P, L)
     geo = object_geometry(0, P[L == 0], sup, background=P[L < 0])
@@ -263,5 +263,16 @@ def test_push_contacts_are_clear_of_the_scene_where_the_task_moves_them():
     assert len(push) > 20
     pressed = push.T_b1_g.copy()
     pressed[:, :3, 3] += pp.press * push.extra["squeeze"]
+    # the task's map for its moves in contact: the scene without what lies within its cut radius of the
+    # object, at its resolution, with its contact margin
+    import inspect
+
+    from scipy.spatial import cKDTree
+
+    from bimanual_app.tasks._motion import CONTACT_MARGIN, MAP_RESOLUTION, TaskMotion
+
+    cut_radius = inspect.signature(TaskMotion.__init__).parameters["cut_radius"].default
+    rest = P[L != 0]
+    cut = SceneOctree(rest[cKDTree(P[L == 0]).query(rest)[0] > cut_radius], MAP_RESOLUTION)
     for T in (push.T_b1_g, pressed):
-        assert not col.collides(others, T, push.width, swept=False, margin=pp.scene_margin).any()
+        assert not col.collides(cut, T, push.width, swept=False, margin=CONTACT_MARGIN).any()
