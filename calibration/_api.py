@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -32,7 +33,8 @@ def _arm_rows(scene, arm, rec) -> tuple[np.ndarray, np.ndarray]:
     return csv_rows, rec_rows
 
 
-def calibrate(scene, method: str = DEFAULT_METHOD, options: CalibrationOptions | None = None) -> CalibrationResult:
+def calibrate(scene, method: str = DEFAULT_METHOD, options: CalibrationOptions | None = None,
+              progress=None) -> CalibrationResult:
     """Calibrate a loaded :class:`bimanual_app.scene.Scene` from its ``reconstruction.npz``.
 
     Uses the end-effector poses of ``ee_poses.csv`` and the reconstruction's camera poses of the same image
@@ -42,7 +44,10 @@ def calibrate(scene, method: str = DEFAULT_METHOD, options: CalibrationOptions |
     Args:
         scene: the scene (``bimanual_app.scene.load_scene``).
         method: "absolute" (default), "paper" or "paper-norefine".
-        options: :class:`CalibrationOptions`.
+        options: :class:`CalibrationOptions`. With ``point_maps`` (the default) and point maps in the
+            reconstruction, the joint solve is refined so that the views' point maps agree
+            (:func:`refine_point_maps`).
+        progress: optional callable(str), one line per step of the point-map refinement.
 
     Returns:
         :class:`CalibrationResult`; ``views_used`` / ``views_dropped`` index the rows of each arm's
@@ -74,7 +79,137 @@ def calibrate(scene, method: str = DEFAULT_METHOD, options: CalibrationOptions |
     res.images = {arm.name: list(arm.images) for arm in scene.arms}
     res.warnings = notes + res.warnings
     res.info["registered"] = {arm.name: len(im) for arm, im in zip(scene.arms, images)}
+    if (options or CalibrationOptions()).point_maps and rec.pts3d is not None:
+        refine_point_maps(scene, res, options, progress)
     return res
+
+
+#: the point-map refinement's raw (independent-residual) sigmas are this many times too small: its
+#: residuals are correlated (neighbouring points share a view's depth warp). Measured on 6 rendered
+#: scenes at paper noise (the RMS over them of error / raw sigma): 17 for the hand-eye rotations, 16 for
+#: the scale, 35 for T_b1_b2's rotation and 34 for its translation; rounded up. bench/calibration.py
+#: ("Point-map refinement") reports how well the inflated sigmas match the errors on its own scenes.
+POINT_MAP_SIGMA_INFLATION = {"hand_eye": 20.0, "scale": 20.0, "T_b1_b2": 35.0}
+
+
+def _views_of(scene, result, include_dropped: bool = False):
+    """``(rows (V,), arms (V,), T_b_e (V, 4, 4))``: the reconstruction rows of the views the calibration used
+    (and those it dropped, with ``include_dropped``), sorted, with each one's arm and end-effector pose."""
+    rec = scene.reconstruction
+    found = []
+    for arm in scene.arms:
+        used = set(result.views_used[arm.name])
+        if include_dropped:
+            used |= {d["index"] for d in result.views_dropped[arm.name]}
+        keys = {arm.images[i]: i for i in used}
+        found += [(j, arm.index, arm.T_b_e[keys[str(k)]]) for j, (a, k) in enumerate(zip(rec.arm, rec.image))
+                  if int(a) == arm.index and str(k) in keys]
+    found.sort(key=lambda f: f[0])
+    return (np.array([f[0] for f in found], dtype=int), np.array([f[1] for f in found], dtype=int),
+            np.array([f[2] for f in found], dtype=np.float64).reshape(-1, 4, 4))
+
+
+def kinematic_camera_poses(result, arms: np.ndarray, T_b_e: np.ndarray) -> np.ndarray:
+    """(V, 4, 4) camera poses in b1 from the kinematics: ``T_b1_b(arm) T_b_e T_e_c(arm)``.
+
+    Args:
+        arms: (V,) 1 or 2; T_b_e: (V, 4, 4) each view's end-effector pose in its own arm's base.
+    """
+    E = np.asarray(T_b_e, dtype=np.float64).reshape(-1, 4, 4)
+    return np.stack([(e @ result.T_e1_c1) if int(a) == 1 else (result.T_b1_b2 @ e @ result.T_e2_c2)
+                     for a, e in zip(arms, E)])
+
+
+def refine_point_maps(scene, result: CalibrationResult, options: CalibrationOptions | None = None,
+                      progress=None) -> dict:
+    """Refine ``result`` in place with the point maps (``calibration._pointmaps``); returns the report that
+    also goes to ``result.info["point_maps"]``.
+
+    When accepted: ``T_e1_c1``, ``T_e2_c2``, ``scale``, ``T_b1_b2`` take the refined values; ``T_b1_w`` is
+    re-fitted to the views (kinematic camera poses against the reconstruction's, at the new scale) and
+    ``T_b2_w = T_b1_b2^-1 T_b1_w``; the residuals are recomputed; the uncertainty of the refined outputs
+    comes from the refinement (inflated by :data:`POINT_MAP_SIGMA_INFLATION`). The joint solve's values
+    stay in the report. When refused, ``result`` is unchanged but for a warning.
+    """
+    from bimanual_app.transforms import inv_T, mean_T
+
+    from ._closed_form import pair_motions, scaled
+    from ._cloud import auto_conf_threshold
+    from ._pointmaps import camera_frame_views, refine_with_point_maps
+    from ._selfmask import wrist_rig_pixels
+    from ._solve import ARM_NAMES, _residual_summary
+
+    opts = options or CalibrationOptions()
+    t0 = time.perf_counter()
+    rec = scene.reconstruction
+    rows, arms, E = _views_of(scene, result)
+    keep = np.all(np.isfinite(rec.pts3d[rows]), axis=-1)
+    if rec.conf is not None:
+        conf = rec.conf[rows]
+        keep &= (conf > auto_conf_threshold(rec.conf)) & (conf > 0)
+    for arm in scene.arms:  # each arm's own fingers move with the camera: not scene points
+        mine = np.flatnonzero(np.asarray(rec.arm) == arm.index)
+        rig = wrist_rig_pixels(rec.pts3d[mine], rec.T_w_c[mine])
+        keep[arms == arm.index] &= ~rig[None]
+    views = camera_frame_views(rec.pts3d[rows], rec.T_w_c[rows], keep, arms, E)
+    before = {"T_e1_c1": result.T_e1_c1, "T_e2_c2": result.T_e2_c2, "scale": result.scale,
+              "T_b1_b2": result.T_b1_b2, "T_b1_w": result.T_b1_w, "T_b2_w": result.T_b2_w,
+              "residuals": result.residuals}
+    rr = refine_with_point_maps(views, result.T_e1_c1, result.T_e2_c2, result.scale, result.T_b1_b2,
+                                progress=progress)
+    report = {"accepted": rr.accepted, "reason": rr.reason, "views": int(len(views)),
+              "rms_before_mm": rr.rms_before_m * 1e3, "rms_after_mm": rr.rms_after_m * 1e3,
+              "median_before_mm": float(np.median(np.abs(rr.residuals_before_m)) * 1e3) if len(rr.residuals_before_m) else None,
+              "median_after_mm": float(np.median(np.abs(rr.residuals_after_m)) * 1e3) if len(rr.residuals_after_m) else None,
+              "point_pairs": rr.correspondences, "cross_arm_pairs": rr.cross_arm, "rounds": rr.rounds,
+              "note": "RMS / median point-to-plane distance between overlapping views placed by the kinematics"}
+    if not rr.accepted:
+        result.warnings.append(f"point-map refinement not applied ({rr.reason}); the joint solve's values are kept")
+    else:
+        result.T_e1_c1, result.T_e2_c2, result.scale, result.T_b1_b2 = rr.T_e1_c1, rr.T_e2_c2, rr.scale, rr.T_b1_b2
+        C_b1 = kinematic_camera_poses(result, arms, E)
+        result.T_b1_w = mean_T(C_b1 @ inv_T(scaled(rec.T_w_c[rows], result.scale)))
+        result.T_b2_w = inv_T(result.T_b1_b2) @ result.T_b1_w
+        Es, Cs, kept = [], [], []
+        for a in (1, 2):
+            Es.append(E[arms == a])
+            Cs.append(rec.T_w_c[rows][arms == a])
+            kept.append(np.ones(int(np.sum(arms == a)), dtype=bool))
+        pms = [pair_motions(e, c, consecutive=opts.pairs == "consecutive") for e, c in zip(Es, Cs)]
+
+        state = SimpleNamespace(X=[result.T_e1_c1, result.T_e2_c2], W=[result.T_b1_w, result.T_b2_w],
+                                scale=result.scale)  # what _residual_summary reads of a solver state
+        result.residuals = _residual_summary(Es, Cs, kept, pms, state, ARM_NAMES)
+        result.uncertainty = _refined_uncertainty(result, rr.covariance, before)
+        report["joint_solve"] = before
+    report["time_s"] = time.perf_counter() - t0
+    result.info["point_maps"] = report
+    if len(rr.residuals_before_m):
+        result.diagnostics["point_map_residuals_m"] = (rr.residuals_before_m, rr.residuals_after_m)
+    return report
+
+
+def _refined_uncertainty(result, cov: np.ndarray, before: dict) -> dict:
+    """The uncertainty dict with the refined outputs' blocks from the refinement's covariance (19, 19)."""
+    from ._uncertainty import _block
+
+    k_he, k_s, k_b = (POINT_MAP_SIGMA_INFLATION[k] for k in ("hand_eye", "scale", "T_b1_b2"))
+    C = np.asarray(cov, dtype=np.float64)
+    u = dict(result.uncertainty or {})
+    for name, k, T in (("T_e1_c1", 0, result.T_e1_c1), ("T_e2_c2", 6, result.T_e2_c2)):
+        G = np.zeros((6, 6))  # right correction: rotvec R w, translation R v
+        G[:3, :3] = G[3:, 3:] = T[:3, :3]
+        u[name] = _block(k_he ** 2 * G @ C[k:k + 6, k:k + 6] @ G.T)
+    sd = k_s * float(np.sqrt(max(C[12, 12], 0.0)))
+    u["scale"] = {"std": result.scale * sd, "percent": 100 * sd}
+    t = result.T_b1_b2[:3, 3]
+    G = np.eye(6)  # left correction: rotvec w, translation w x t + v
+    G[3:, :3] = -np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    u["T_b1_b2"] = _block(k_b ** 2 * G @ C[13:19, 13:19] @ G.T)
+    u["estimator"] = (f"point-map refinement: linearised covariance, sigmas x {k_he:g} (hand-eyes), x {k_s:g} "
+                      f"(scale), x {k_b:g} (T_b1_b2) for correlated residuals; T_b1_w, T_b2_w: "
+                      f"{(result.uncertainty or {}).get('estimator', 'joint solve')}")
+    return u
 
 
 ROBOT_RADIUS = 0.15  # m: points this close to a base's vertical axis are taken as the robot itself
@@ -94,15 +229,12 @@ def scene_cloud(scene, result: CalibrationResult, conf_threshold: float | None =
     rec = scene.reconstruction
     if rec is None or rec.pts3d is None:
         return np.zeros((0, 3)), None, {"points": 0, "note": "the reconstruction has no point maps (pts3d)"}
-    rows = []
-    for arm in scene.arms:
-        used = set(result.views_used[arm.name])
-        if include_dropped:
-            used |= {d["index"] for d in result.views_dropped[arm.name]}
-        keys = {arm.images[i] for i in used}
-        rows += [j for j, (a, k) in enumerate(zip(rec.arm, rec.image)) if int(a) == arm.index and str(k) in keys]
-    rows = np.array(sorted(rows), dtype=int)
+    rows, arms, E = _views_of(scene, result, include_dropped)
     pts3d = rec.pts3d[rows].copy()
+    T_w_c = rec.T_w_c[rows]
+    anchored = bool((result.info.get("point_maps") or {}).get("accepted"))
+    if anchored:
+        pts3d, T_w_c = _kinematic_anchor(pts3d, T_w_c, result, arms, E)
     rig_pixels = {}
     if wrist_rig:
         from ._selfmask import wrist_rig_pixels
@@ -118,12 +250,13 @@ def scene_cloud(scene, result: CalibrationResult, conf_threshold: float | None =
     if free_space and len(rows) >= 3:
         from ._fusion import free_space_outliers
 
-        drop = free_space_outliers(pts3d, rec.T_w_c[rows])
+        drop = free_space_outliers(pts3d, T_w_c)
         seen_through = int(drop.sum())
         pts3d[drop] = np.nan
     points, colors, info = metric_cloud(pts3d, result.T_b1_w, result.scale,
                                         None if rec.conf is None else rec.conf[rows],
                                         None if rec.colors is None else rec.colors[rows], conf_threshold)
+    info["views_placed_by"] = "kinematics" if anchored else "reconstruction"
     if rig_pixels:
         info["wrist_rig_pixels"] = rig_pixels
     if free_space:
@@ -136,6 +269,21 @@ def scene_cloud(scene, result: CalibrationResult, conf_threshold: float | None =
         colors = None if colors is None else colors[keep]
         info["points"] = int(len(points))
     return points, colors, info
+
+
+def _kinematic_anchor(pts3d_w: np.ndarray, T_w_c: np.ndarray, result, arms: np.ndarray, T_b_e: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Move each view's point map (V, H, W, 3) in w to where the kinematics put its camera: ``T_w_c`` (V, 4, 4)
+    becomes ``(T_b1_w^-1 T_b1_c)`` with its translation in w units, and each map follows its camera. The
+    map keeps its shape in its own camera frame; only the reconstruction's error in the view's pose goes.
+    Returns the moved maps and poses (the input arrays are not changed)."""
+    from bimanual_app.transforms import inv_T
+
+    C_w = inv_T(result.T_b1_w) @ kinematic_camera_poses(result, arms, T_b_e)
+    C_w[:, :3, 3] /= result.scale
+    M = C_w @ inv_T(np.asarray(T_w_c, dtype=np.float64))  # (V, 4, 4): old camera pose -> new, in w
+    out = np.einsum("vij,vhwj->vhwi", M[:, :3, :3], pts3d_w.astype(np.float64)) + M[:, None, None, :3, 3]
+    return out.astype(pts3d_w.dtype), C_w
 
 
 def robot_self_mask(points_b1: np.ndarray, T_b1_bases: list[np.ndarray], radius: float = ROBOT_RADIUS,
@@ -210,5 +358,11 @@ def write_outputs(out_dir: str | Path, scene, result: CalibrationResult, conf_th
         save_calibration_figure(out / "calibration.png", result, *arrs, pts if len(pts) else None, cols,
                                 title=f"Bi-JCR calibration of '{scene.name}'")
         files["calibration.png"] = out / "calibration.png"
+        if "point_map_residuals_m" in result.diagnostics:
+            from ._plot import save_point_map_figure
+
+            save_point_map_figure(out / "point_maps.png", *result.diagnostics["point_map_residuals_m"],
+                                  result.info.get("point_maps", {}), title=f"point-map refinement of '{scene.name}'")
+            files["point_maps.png"] = out / "point_maps.png"
     log(f"wrote {len(files)} files in {time.perf_counter() - t0:.2f} s")
     return files

@@ -140,3 +140,41 @@ def save_calibration_figure(path: Path, result, T_b1_e: np.ndarray, T_w_c1: np.n
         fig.savefig(tmp, dpi=100)
     plt.close(fig)
 
+
+
+def save_point_map_figure(path: Path, before_m: np.ndarray, after_m: np.ndarray, report: dict, title: str = "") -> None:
+    """point_maps.png: how far overlapping views lie from each other (point-to-plane, mm) with the joint
+    solve and after the point-map refinement, and the RMS of each ICP round.
+
+    Args:
+        before_m, after_m: (R,) signed distances (m) of the same point pairs.
+        report: ``result.info["point_maps"]`` (accepted, reason, rounds, ...).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    b, a = np.abs(np.asarray(before_m)) * 1e3, np.abs(np.asarray(after_m)) * 1e3
+    fig, (h, r) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [2, 1]})
+    top = float(np.percentile(np.concatenate([b, a]), 99)) if len(b) else 1.0
+    bins = np.linspace(0, max(top, 1.0), 60)
+    h.hist(b, bins=bins, alpha=0.55, color="tab:red", label=f"joint solve: median {np.median(b):.2f} mm")
+    h.hist(a, bins=bins, alpha=0.55, color="tab:blue", label=f"refined: median {np.median(a):.2f} mm")
+    h.set_xlabel("distance between overlapping views (point to plane, mm)")
+    h.set_ylabel("point pairs")
+    h.legend()
+    h.grid(alpha=0.3)
+    rounds = report.get("rounds") or []
+    if rounds:
+        r.plot([q["radius_m"] * 1e3 for q in rounds], [q["rms_m"] * 1e3 for q in rounds], "o-", color="tab:blue")
+        r.invert_xaxis()
+    r.set_xlabel("correspondence radius of the round (mm)")
+    r.set_ylabel("RMS after the round (mm)")
+    r.grid(alpha=0.3)
+    verdict = "applied" if report.get("accepted") else f"NOT applied: {report.get('reason', '')}"
+    fig.suptitle((title + "\n" if title else "") + f"views placed by the kinematics; refinement {verdict}", fontsize=10)
+    fig.tight_layout()
+    with atomic_file(path) as tmp:
+        fig.savefig(tmp, dpi=100)
+    plt.close(fig)

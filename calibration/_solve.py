@@ -55,6 +55,10 @@ class CalibrationOptions:
         max_outlier_fraction: never drop more than this fraction of an arm's views.
         on_degenerate: "raise" (DegenerateCaptureError) or "warn" (solve anyway, warnings in the result).
         uncertainty: "jacobian", "jackknife" or "none".
+        point_maps: with :func:`calibration.calibrate` on a scene whose reconstruction has point maps,
+            refine the joint solve so that the views' point maps, placed by the kinematics, agree
+            (``calibration._pointmaps``), and build the cloud from the views placed by the kinematics.
+            Arrays-only :func:`solve_bijcr` has no point maps and ignores it.
     """
 
     alpha: float = 0.5
@@ -72,6 +76,7 @@ class CalibrationOptions:
     max_outlier_fraction: float = 0.34
     on_degenerate: str = "raise"
     uncertainty: str = "jacobian"
+    point_maps: bool = True
 
     def __post_init__(self):
         if self.pairs not in ("all", "consecutive"):
@@ -105,6 +110,8 @@ class CalibrationResult:
         noise: per-view noise used to weight the absolute problem (estimated or given).
         warnings: human-readable warnings (degeneracy, dropped views, ...).
         info: timings and solver details.
+        diagnostics: arrays for the figures that do not go to calibration.json (the point-map refinement's
+            per-pair distances before and after).
     """
 
     method: str
@@ -122,6 +129,7 @@ class CalibrationResult:
     noise: dict
     warnings: list = field(default_factory=list)
     info: dict = field(default_factory=dict)
+    diagnostics: dict = field(default_factory=dict, repr=False)
 
     @property
     def hand_eye(self) -> tuple[np.ndarray, np.ndarray]:

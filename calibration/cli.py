@@ -38,7 +38,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="solve a degenerate capture anyway (with warnings) instead of stopping")
     p.add_argument("--conf-threshold", type=float, default=None,
                    help="keep point-map points with conf above this (default: 0.2 x median confidence)")
-    p.add_argument("--no-figure", action="store_true", help="skip calibration.png")
+    p.add_argument("--no-point-maps", action="store_true",
+                   help="skip the point-map refinement: keep the joint solve's values and build the cloud from "
+                        "the reconstruction's camera poses (the paper's cloud)")
+    p.add_argument("--no-figure", action="store_true", help="skip calibration.png and point_maps.png")
     p.add_argument("--quiet", action="store_true", help="print only errors and the output folder")
 
 
@@ -77,6 +80,13 @@ def summary(result, scene) -> list[str]:
     lines.append(f"AX=XB residuals: rotation {r['rotation_rad']:.4f} rad, translation {1000 * r['translation_m']:.2f} mm "
                  f"(noise per view: {result.noise['rotation_deg']:.2f} deg, {result.noise['translation_mm']:.1f} mm, "
                  f"{result.noise['source']})")
+    pm = (result.info or {}).get("point_maps")
+    if pm and pm.get("accepted"):
+        lines.append(f"point-map refinement: overlapping views {pm['median_before_mm']:.2f} -> {pm['median_after_mm']:.2f} mm "
+                     f"apart (median, {pm['point_pairs']} point pairs, {pm['cross_arm_pairs']} between the arms); "
+                     f"cloud placed by the kinematics")
+    elif pm:
+        lines.append(f"point-map refinement: not applied ({pm['reason']})")
     return lines
 
 
@@ -115,14 +125,17 @@ def run(args: argparse.Namespace) -> int:
         opts = CalibrationOptions(
             alpha=args.alpha, pairs=args.pairs, reject_outliers=args.reject, robust=not args.no_robust,
             noise_rot_deg=args.noise[0] if args.noise else None, noise_trans_mm=args.noise[1] if args.noise else None,
-            on_degenerate="warn" if args.allow_degenerate else "raise", uncertainty=args.uncertainty)
+            on_degenerate="warn" if args.allow_degenerate else "raise", uncertainty=args.uncertainty,
+            point_maps=not args.no_point_maps)
     except ValueError as e:
         print(f"bijcr calibrate: {e}", file=sys.stderr)
         return 2
     scene = load_scene(args.scene)
     log(f"loaded scene '{scene.name}'")
-    result = calibrate(scene, method=args.method, options=opts)
-    log(f"solved in {result.info['time_total_s']:.3f} s")
+    result = calibrate(scene, method=args.method, options=opts, progress=log)
+    pm = result.info.get("point_maps")
+    log(f"joint solve in {result.info['time_total_s']:.3f} s" +
+        (f", point-map refinement in {pm['time_s']:.1f} s" if pm else ""))
     files = write_outputs(Path(args.out), scene, result, conf_threshold=args.conf_threshold,
                           figure=not args.no_figure, log=log)
     if not args.quiet:

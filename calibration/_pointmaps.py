@@ -1,0 +1,335 @@
+"""Point-map refinement of the joint solve: make the views' point maps agree when each is placed by FK.
+
+The joint solve uses only the camera *poses* of the reconstruction, and each of them carries its own
+error (about 1.5 deg / 1 cm for a foundation model). The point maps carry much more: every view sees the
+same table and objects. Placed by the kinematics, view ``i`` of arm ``a`` puts its camera-frame points
+``p_c`` (reconstruction units) at
+
+    x_b1 = T_b1_ba T_ba_e(i) T_ea_ca (scale * p_c)
+
+where ``T_ba_e(i)`` is the arm's forward kinematics (millimetre-accurate) and only ``T_e1_c1``,
+``T_e2_c2``, ``scale`` and ``T_b1_b2`` (19 numbers) are unknown. When they are right, every pair of views
+lays the same surface in the same place; when they are off, views taken from different poses disagree
+in a way that depends on the pose. This module finds the 19 numbers that minimise the point-to-plane
+distance between overlapping views (an ICP whose only free parameters are the calibration's, so the
+per-view pose error drops out: each view keeps its own depth and takes its pose from the arm).
+
+Unlike a multiway registration with a free pose per view (which partial overlap and a dominant table
+leave under-determined), the problem has 19 unknowns and tens of thousands of residuals.
+
+Written with scipy (``least_squares`` with a soft-L1 loss, ``cKDTree`` correspondences) because the
+parametrisation - every view's pose tied to the arm's kinematics through shared unknowns - is not one
+that Open3D's or pycolmap's registration offers.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bimanual_app.transforms import check_shape, make_T, so3_exp
+
+__all__ = ["PointMapView", "RefineResult", "camera_frame_views", "refine_with_point_maps", "grid_normals"]
+
+#: correspondence radii (m) of the successive ICP rounds: coarse to fine; the last is repeated (up to
+#: MAX_FINE_ROUNDS times) until a round moves no point of the workspace by more than CONVERGED_M. Point-to-plane
+#: pairs slide freely along the table, so what corrects the in-plane error is re-matching at object edges:
+#: slow, round by round, after the coarse error is gone.
+RADII = (0.03, 0.02, 0.012, 0.008)
+MAX_FINE_ROUNDS = 4
+CONVERGED_M = 2e-4
+LEVER_M = 0.5  # a rotation change is judged by what it does this far away (the scale's likewise)
+POINTS_PER_VIEW = 800  # sampled points per view that look for partners in every other view
+MIN_NORMAL_COS = 0.8  # partners whose normals differ more (about 37 deg) are on different surfaces
+ROBUST_KNEE_M = 0.003  # soft-L1 knee: residuals beyond 3 mm count less and less
+MIN_RESIDUALS = 500
+# a refinement that moves an output further than this is not a correction of the joint solve
+MAX_ROT_CHANGE_DEG = 5.0
+MAX_TRANS_CHANGE_M = 0.05
+MAX_LOG_SCALE_CHANGE = 0.1
+
+
+@dataclass(frozen=True)
+class PointMapView:
+    """One view's point map in its own camera frame.
+
+    Attributes:
+        arm: 1 (primary) or 2 (secondary).
+        T_b_e: (4, 4) the arm's end-effector pose at this view (forward kinematics).
+        points_c: (K, 3) points in the camera frame, reconstruction units.
+        normals_c: (K, 3) unit normals in the camera frame (towards the camera).
+    """
+
+    arm: int
+    T_b_e: np.ndarray
+    points_c: np.ndarray
+    normals_c: np.ndarray
+
+
+@dataclass
+class RefineResult:
+    """Refined calibration and how much the views' agreement improved.
+
+    Attributes:
+        T_e1_c1, T_e2_c2, T_b1_b2: (4, 4); scale: metric = scale * reconstruction units.
+        accepted: False when the refinement was refused (``reason``); the inputs are then returned as given.
+        rms_before_m, rms_after_m: RMS point-to-plane distance between overlapping views (m) on the final
+            round's correspondences, at the joint solve and at the refined values.
+        residuals_before_m, residuals_after_m: (R,) those distances (for plots).
+        correspondences: number of point pairs in the final round; cross_arm: of them between the arms.
+        rounds: per ICP round ``{"radius_m", "pairs", "rms_m", "moved_m"}`` (``moved_m``: how far the round's
+            change moves the workspace, see ``_movement``).
+        covariance: (19, 19) linearised covariance of the corrections (rotation vector and translation of
+            ``T_e1_c1`` in c1, the same for ``T_e2_c2``, log scale, rotation vector and translation of
+            ``T_b1_b2`` on the left in b1), from the last round's Jacobian and the robust spread of its
+            residuals, as if they were independent (they are not: see :func:`uncertainty`).
+    """
+
+    T_e1_c1: np.ndarray
+    T_e2_c2: np.ndarray
+    scale: float
+    T_b1_b2: np.ndarray
+    accepted: bool
+    reason: str = ""
+    rms_before_m: float = float("nan")
+    rms_after_m: float = float("nan")
+    residuals_before_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    residuals_after_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    correspondences: int = 0
+    cross_arm: int = 0
+    rounds: list = field(default_factory=list)
+    covariance: np.ndarray | None = None
+
+
+def grid_normals(points_c: np.ndarray) -> np.ndarray:
+    """(H, W, 3) unit normals of an organised point map (H, W, 3) from its grid neighbours (central
+    differences), oriented towards the camera; NaN where a neighbour is missing or at the border."""
+    P = check_shape("points_c", np.asarray(points_c, dtype=np.float64), (None, None, 3))
+    dx = np.full_like(P, np.nan)
+    dy = np.full_like(P, np.nan)
+    dx[:, 1:-1] = P[:, 2:] - P[:, :-2]
+    dy[1:-1] = P[2:] - P[:-2]
+    n = np.cross(dx, dy)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        n = n / np.linalg.norm(n, axis=-1, keepdims=True)
+        n = -n * np.sign(np.sum(n * P, axis=-1, keepdims=True))
+    return n
+
+
+def camera_frame_views(pts3d_w: np.ndarray, T_w_c: np.ndarray, keep: np.ndarray, arms: np.ndarray,
+                       T_b_e: np.ndarray) -> list[PointMapView]:
+    """The views of a reconstruction in their camera frames.
+
+    Args:
+        pts3d_w: (V, H, W, 3) point maps in the reconstruction frame; T_w_c: (V, 4, 4) their poses.
+        keep: (V, H, W) bool, the pixels to use (confident, not the robot's own rig).
+        arms: (V,) 1 or 2; T_b_e: (V, 4, 4) each view's end-effector pose in its arm's base.
+    """
+    P = check_shape("pts3d", np.asarray(pts3d_w), (None, None, None, 3))
+    V = len(P)
+    T = check_shape("T_w_c", np.asarray(T_w_c, dtype=np.float64), (V, 4, 4))
+    keep = check_shape("keep", np.asarray(keep, dtype=bool), P.shape[:3])
+    E = check_shape("T_b_e", np.asarray(T_b_e, dtype=np.float64), (V, 4, 4))
+    out = []
+    for v in range(V):
+        Pc = (P[v].astype(np.float64) - T[v, :3, 3]) @ T[v, :3, :3]
+        N = grid_normals(Pc)
+        ok = keep[v] & np.all(np.isfinite(Pc), axis=-1) & np.all(np.isfinite(N), axis=-1) & (Pc[..., 2] > 0)
+        out.append(PointMapView(int(arms[v]), E[v], Pc[ok], N[ok]))
+    return out
+
+
+def _unpack(x: np.ndarray, T_e1_c1, T_e2_c2, scale, T_b1_b2):
+    """Corrections ``x`` (19,) -> the four outputs: hand-eyes corrected on the right (in the camera frame),
+    the base on the left (in b1), the scale by a log factor."""
+    T1 = T_e1_c1 @ make_T(so3_exp(x[0:3]), x[3:6])
+    T2 = T_e2_c2 @ make_T(so3_exp(x[6:9]), x[9:12])
+    Tb = make_T(so3_exp(x[13:16]), x[16:19]) @ T_b1_b2
+    return T1, T2, float(scale * np.exp(x[12])), Tb
+
+
+def _camera_poses(views, T1, T2, Tb) -> np.ndarray:
+    """(V, 4, 4) each view's camera pose in b1 from the kinematics and the calibration."""
+    return np.stack([(v.T_b_e @ T1) if v.arm == 1 else (Tb @ v.T_b_e @ T2) for v in views])
+
+
+def _robot_column(P: np.ndarray, Tb: np.ndarray, radius: float = 0.15, above: float = 0.015) -> np.ndarray:
+    """(N,) True near either base's vertical axis: the arms themselves, which move between views."""
+    mask = np.zeros(len(P), dtype=bool)
+    for T in (np.eye(4), Tb):
+        local = (P - T[:3, 3]) @ T[:3, :3]
+        mask |= (np.hypot(local[:, 0], local[:, 1]) < radius) & (local[:, 2] > above)
+    return mask
+
+
+def _correspondences(views, samples, Tc, scale, Tb, radius):
+    """Point pairs between views within ``radius`` (m) with agreeing normals, at the current estimate.
+
+    Returns arrays ``(va, pa, vb, pb, nb)``: view and camera-frame point of each sample, view, point and
+    normal of its nearest partner."""
+    from scipy.spatial import cKDTree
+
+    placed = [scale * v.points_c @ T[:3, :3].T + T[:3, 3] for v, T in zip(views, Tc)]
+    trees = [cKDTree(p) for p in placed]
+    va, ia, vb, ib = [], [], [], []
+    for a, v in enumerate(views):
+        s = samples[a]
+        Pa = placed[a][s]
+        Na = v.normals_c[s] @ Tc[a, :3, :3].T
+        free = ~_robot_column(Pa, Tb)
+        for b, u in enumerate(views):
+            if a == b:
+                continue
+            d, j = trees[b].query(Pa, distance_upper_bound=radius)
+            ok = np.isfinite(d) & free
+            if not ok.any():
+                continue
+            jj = np.minimum(j, len(placed[b]) - 1)
+            Nb = u.normals_c[jj] @ Tc[b, :3, :3].T
+            ok &= np.abs(np.sum(Na * Nb, axis=1)) >= MIN_NORMAL_COS
+            n = int(ok.sum())
+            if n:
+                va.append(np.full(n, a)), ia.append(s[ok]), vb.append(np.full(n, b)), ib.append(j[ok])
+    if not va:
+        return None
+    va, ia, vb, ib = (np.concatenate(z) for z in (va, ia, vb, ib))
+    # gather per view (vectorised over the pairs of each view)
+    pa = np.empty((len(va), 3))
+    pb = np.empty((len(vb), 3))
+    nb = np.empty((len(vb), 3))
+    for k, v in enumerate(views):
+        m = va == k
+        pa[m] = v.points_c[ia[m]]
+        m = vb == k
+        pb[m] = v.points_c[ib[m]]
+        nb[m] = v.normals_c[ib[m]]
+    return va, pa, vb, pb, nb
+
+
+def _transform_grouped(R: np.ndarray, t: np.ndarray, p: np.ndarray, bounds: np.ndarray, s: float = 1.0) -> np.ndarray:
+    """``s R[v] p + t[v]`` (or ``R[v] p`` when ``t`` is None) for points ``p`` (K, 3) sorted by view, view
+    ``v`` owning rows ``bounds[v]:bounds[v+1]``: one small matmul per view, no (K, 3, 3) gather."""
+    out = np.empty_like(p)
+    for v in range(len(R)):
+        a, b = bounds[v], bounds[v + 1]
+        if b > a:
+            out[a:b] = s * p[a:b] @ R[v].T + (0.0 if t is None else t[v])
+    return out
+
+
+class _Pairs:
+    """Correspondences laid out for fast residuals: the samples sorted by their view, the partners by theirs."""
+
+    def __init__(self, corr, n_views: int):
+        va, pa, vb, pb, nb = corr
+        oa = np.argsort(va, kind="stable")
+        self.va, self.vb = va[oa], vb[oa]
+        self.pa = pa[oa]
+        ob = np.argsort(self.vb, kind="stable")
+        self.ob = ob
+        self.pb, self.nb = pb[oa][ob], nb[oa][ob]
+        self.ba = np.searchsorted(self.va, np.arange(n_views + 1))
+        self.bb = np.searchsorted(self.vb[ob], np.arange(n_views + 1))
+        self.inv_ob = np.empty_like(ob)
+        self.inv_ob[ob] = np.arange(len(ob))
+
+    def __len__(self):
+        return len(self.va)
+
+
+def _residuals(x, views, start, pairs: _Pairs) -> np.ndarray:
+    T1, T2, s, Tb = _unpack(x, *start)
+    Tc = _camera_poses(views, T1, T2, Tb)
+    R, t = Tc[:, :3, :3], Tc[:, :3, 3]
+    Xa = _transform_grouped(R, t, pairs.pa, pairs.ba, s)
+    Xb = _transform_grouped(R, t, pairs.pb, pairs.bb, s)[pairs.inv_ob]
+    Nb = _transform_grouped(R, None, pairs.nb, pairs.bb)[pairs.inv_ob]
+    return np.sum((Xa - Xb) * Nb, axis=1)
+
+
+def _movement(dx: np.ndarray) -> float:
+    """How far (m) a change of the corrections (19,) moves points of the workspace, at most."""
+    rot = np.linalg.norm(dx[[0, 1, 2, 6, 7, 8, 13, 14, 15]].reshape(3, 3), axis=1)
+    trans = np.linalg.norm(dx[[3, 4, 5, 9, 10, 11, 16, 17, 18]].reshape(3, 3), axis=1)
+    return float(max((rot * LEVER_M + trans).max(), abs(dx[12]) * LEVER_M))
+
+
+def refine_with_point_maps(views: list[PointMapView], T_e1_c1: np.ndarray, T_e2_c2: np.ndarray, scale: float,
+                           T_b1_b2: np.ndarray, radii: tuple = RADII, points_per_view: int = POINTS_PER_VIEW,
+                           max_fine_rounds: int = MAX_FINE_ROUNDS, seed: int = 0, progress=None) -> RefineResult:
+    """Refine the joint solve so that the views' point maps, placed by the kinematics, agree.
+
+    Args:
+        views: the point maps (:func:`camera_frame_views`), at least 2 per arm.
+        T_e1_c1, T_e2_c2, T_b1_b2: (4, 4) the joint solve's values; scale: its scale.
+        radii: correspondence radius (m) of each ICP round; the last one is repeated up to
+            ``max_fine_rounds`` times, until a round moves the workspace by less than ``CONVERGED_M``.
+        points_per_view: sampled points of each view that look for partners.
+        progress: optional callable(str) for one line per round.
+
+    Returns:
+        :class:`RefineResult`; refused (``accepted=False``, inputs unchanged) when the views overlap too
+        little, the agreement does not improve, or an output would move further than a correction
+        (``MAX_ROT_CHANGE_DEG``, ``MAX_TRANS_CHANGE_M``, ``MAX_LOG_SCALE_CHANGE``).
+    """
+    from scipy.optimize import least_squares
+
+    start = tuple(check_shape(n, np.asarray(T, dtype=np.float64), (4, 4)) for n, T in
+                  (("T_e1_c1", T_e1_c1), ("T_e2_c2", T_e2_c2))) + (float(scale),) + (
+        check_shape("T_b1_b2", np.asarray(T_b1_b2, dtype=np.float64), (4, 4)),)
+
+    def refused(reason: str, **kw) -> RefineResult:
+        return RefineResult(start[0], start[1], start[2], start[3], False, reason, **kw)
+
+    per_arm = [sum(1 for v in views if v.arm == a) for a in (1, 2)]
+    if min(per_arm) < 2:
+        return refused(f"needs 2 or more point maps per arm, has {per_arm[0]} / {per_arm[1]}")
+    rng = np.random.default_rng(seed)
+    samples = [rng.choice(len(v.points_c), min(points_per_view, len(v.points_c)), replace=False)
+               if len(v.points_c) else np.zeros(0, dtype=int) for v in views]
+    x = np.zeros(19)
+    x_scale = np.r_[[0.01] * 3, [0.005] * 3, [0.01] * 3, [0.005] * 3, [0.01], [0.01] * 3, [0.01] * 3]
+    rounds, corr = [], None
+    schedule = list(radii) + [radii[-1]] * max_fine_rounds
+    for k, radius in enumerate(schedule):
+        T1, T2, s, Tb = _unpack(x, *start)
+        corr = _correspondences(views, samples, _camera_poses(views, T1, T2, Tb), s, Tb, radius)
+        n = 0 if corr is None else len(corr[0])
+        if n >= MIN_RESIDUALS:
+            corr = _Pairs(corr, len(views))
+        else:
+            return refused(f"the point maps overlap too little: {n} point pairs within {radius * 1e3:.0f} mm "
+                           f"(needs {MIN_RESIDUALS})", rounds=rounds)
+        sol = least_squares(_residuals, x, args=(views, start, corr), loss="soft_l1", f_scale=ROBUST_KNEE_M,
+                            x_scale=x_scale, max_nfev=50)
+        moved = _movement(sol.x - x)
+        x, jac, fun = sol.x, sol.jac, sol.fun
+        rounds.append({"radius_m": radius, "pairs": n, "rms_m": float(np.sqrt(np.mean(sol.fun ** 2))),
+                       "moved_m": moved})
+        if progress:
+            progress(f"point-map refinement: {radius * 1e3:.0f} mm round, {n} point pairs, "
+                     f"RMS {rounds[-1]['rms_m'] * 1e3:.2f} mm, moved {moved * 1e3:.2f} mm")
+        if k >= len(radii) - 1 and moved < CONVERGED_M:
+            break
+    r0 = _residuals(np.zeros(19), views, start, corr)
+    r1 = _residuals(x, views, start, corr)
+    va, vb = corr.va, corr.vb
+    arm = np.array([v.arm for v in views])
+    info = dict(rms_before_m=float(np.sqrt(np.mean(r0 ** 2))), rms_after_m=float(np.sqrt(np.mean(r1 ** 2))),
+                residuals_before_m=r0, residuals_after_m=r1, correspondences=int(len(va)),
+                cross_arm=int(np.sum(arm[va] != arm[vb])), rounds=rounds)
+    # judged robustly (the median absolute distance), as the fit is: a few far pairs must not decide
+    if np.median(np.abs(r1)) >= np.median(np.abs(r0)):
+        return refused("the point maps agree no better after refinement", **info)
+    rot = np.degrees(np.linalg.norm(x[[0, 1, 2, 6, 7, 8, 13, 14, 15]].reshape(3, 3), axis=1)).max()
+    trans = np.linalg.norm(x[[3, 4, 5, 9, 10, 11, 16, 17, 18]].reshape(3, 3), axis=1).max()
+    if rot > MAX_ROT_CHANGE_DEG or trans > MAX_TRANS_CHANGE_M or abs(x[12]) > MAX_LOG_SCALE_CHANGE:
+        return refused(f"the refinement would move an output by {rot:.1f} deg / {trans * 1e3:.0f} mm / scale "
+                       f"{(np.exp(x[12]) - 1) * 100:+.1f} %, more than a correction of the joint solve", **info)
+    if info["cross_arm"] == 0:
+        return refused("no point pairs between the two arms' views: T_b1_b2 cannot be refined", **info)
+    T1, T2, s, Tb = _unpack(x, *start)
+    sigma = 1.4826 * np.median(np.abs(fun - np.median(fun)))  # robust spread of the residuals (m)
+    cov = sigma ** 2 * np.linalg.pinv(jac.T @ jac)
+    return RefineResult(T1, T2, s, Tb, True, "", covariance=cov, **info)
