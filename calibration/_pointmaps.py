@@ -41,6 +41,7 @@ MAX_FINE_ROUNDS = 4
 CONVERGED_M = 2e-4
 LEVER_M = 0.5  # a rotation change is judged by what it does this far away (the scale's likewise)
 POINTS_PER_VIEW = 800  # sampled points per view that look for partners in every other view
+TARGETS_PER_VIEW = 6000  # points per view among which partners are looked for (point-to-plane needs no more)
 MIN_NORMAL_COS = 0.8  # partners whose normals differ more (about 37 deg) are on different surfaces
 ROBUST_KNEE_M = 0.003  # soft-L1 knee: residuals beyond 3 mm count less and less
 MIN_RESIDUALS = 500
@@ -163,19 +164,20 @@ def _robot_column(P: np.ndarray, Tb: np.ndarray, radius: float = 0.15, above: fl
     return mask
 
 
-def _correspondences(views, samples, Tc, scale, Tb, radius):
-    """Point pairs between views within ``radius`` (m) with agreeing normals, at the current estimate.
+def _correspondences(views, samples, targets, Tc, scale, Tb, radius):
+    """Point pairs between views within ``radius`` (m) with agreeing normals, at the current estimate:
+    each view's ``samples`` (indices) look for their nearest partner among the ``targets`` of every other.
 
     Returns arrays ``(va, pa, vb, pb, nb)``: view and camera-frame point of each sample, view, point and
     normal of its nearest partner."""
     from scipy.spatial import cKDTree
 
-    placed = [scale * v.points_c @ T[:3, :3].T + T[:3, 3] for v, T in zip(views, Tc)]
+    placed = [scale * v.points_c[g] @ T[:3, :3].T + T[:3, 3] for v, T, g in zip(views, Tc, targets)]
     trees = [cKDTree(p) for p in placed]
     va, ia, vb, ib = [], [], [], []
     for a, v in enumerate(views):
         s = samples[a]
-        Pa = placed[a][s]
+        Pa = scale * v.points_c[s] @ Tc[a, :3, :3].T + Tc[a, :3, 3]
         Na = v.normals_c[s] @ Tc[a, :3, :3].T
         free = ~_robot_column(Pa, Tb)
         for b, u in enumerate(views):
@@ -185,12 +187,12 @@ def _correspondences(views, samples, Tc, scale, Tb, radius):
             ok = np.isfinite(d) & free
             if not ok.any():
                 continue
-            jj = np.minimum(j, len(placed[b]) - 1)
+            jj = targets[b][np.minimum(j, len(placed[b]) - 1)]
             Nb = u.normals_c[jj] @ Tc[b, :3, :3].T
             ok &= np.abs(np.sum(Na * Nb, axis=1)) >= MIN_NORMAL_COS
             n = int(ok.sum())
             if n:
-                va.append(np.full(n, a)), ia.append(s[ok]), vb.append(np.full(n, b)), ib.append(j[ok])
+                va.append(np.full(n, a)), ia.append(s[ok]), vb.append(np.full(n, b)), ib.append(jj[ok])
     if not va:
         return None
     va, ia, vb, ib = (np.concatenate(z) for z in (va, ia, vb, ib))
@@ -238,14 +240,55 @@ class _Pairs:
         return len(self.va)
 
 
-def _residuals(x, views, start, pairs: _Pairs) -> np.ndarray:
+def _geometry(x, views, start, pairs: _Pairs):
+    """Everything the residuals and their Jacobian share: camera rotations and translations (V, 3, 3),
+    (V, 3), the scale, and per pair (in the samples' order) ``X_a``, ``X_b``, ``N_b`` in b1."""
     T1, T2, s, Tb = _unpack(x, *start)
     Tc = _camera_poses(views, T1, T2, Tb)
     R, t = Tc[:, :3, :3], Tc[:, :3, 3]
     Xa = _transform_grouped(R, t, pairs.pa, pairs.ba, s)
     Xb = _transform_grouped(R, t, pairs.pb, pairs.bb, s)[pairs.inv_ob]
     Nb = _transform_grouped(R, None, pairs.nb, pairs.bb)[pairs.inv_ob]
+    return R, t, s, Xa, Xb, Nb
+
+
+def _residuals(x, views, start, pairs: _Pairs) -> np.ndarray:
+    """(P,) signed point-to-plane distances (m): sample ``X_a`` from the tangent plane of its partner."""
+    _, _, _, Xa, Xb, Nb = _geometry(x, views, start, pairs)
     return np.sum((Xa - Xb) * Nb, axis=1)
+
+
+def _jacobian(x, views, start, pairs: _Pairs) -> np.ndarray:
+    """(P, 19) derivatives of :func:`_residuals`, analytic, for a perturbation of the current estimate (the
+    hand-eyes' on the right, the base's on the left; exact at the start of a round, first-order away
+    from it, which the trust region absorbs).
+
+    Derived from ``X = R (s p) + t`` and ``N = R n``: a right rotation ``w`` of a view's hand-eye gives
+    ``dX = -R (s p x w)``, ``dN = -R (n x w)``; a translation ``u`` gives ``dX = R u``; a left rotation of
+    ``T_b1_b2`` gives ``dX = -X x w_b``, ``dN = -N x w_b`` for the secondary's views; the log-scale gives
+    ``dX = X - t``. Checked against finite differences in the tests."""
+    R, t, s, Xa, Xb, Nb = _geometry(x, views, start, pairs)
+    d = Xa - Xb
+    arm = np.array([v.arm for v in views])
+    Rt = np.swapaxes(R, 1, 2)
+    qa = s * pairs.pa
+    nb_a = _transform_grouped(Rt, None, Nb, pairs.ba)  # N_b in camera a
+    # in camera b: the partner's own normal and point, and d
+    nb_b = pairs.nb[pairs.inv_ob]
+    qb = s * pairs.pb[pairs.inv_ob]
+    d_b = _transform_grouped(Rt, None, d[pairs.ob], pairs.bb)[pairs.inv_ob]
+    J = np.zeros((len(d), 19))
+    for m, k0 in ((1, 0), (2, 6)):
+        on_a = (arm[pairs.va] == m)[:, None]
+        on_b = (arm[pairs.vb] == m)[:, None]
+        J[:, k0:k0 + 3] = on_a * -np.cross(nb_a, qa) + on_b * (-np.cross(d_b, nb_b) + np.cross(nb_b, qb))
+        J[:, k0 + 3:k0 + 6] = on_a * nb_a - on_b * nb_b
+    J[:, 12] = np.sum(Nb * ((Xa - t[pairs.va]) - (Xb - t[pairs.vb])), axis=1)
+    a2 = (arm[pairs.va] == 2)[:, None]
+    b2 = (arm[pairs.vb] == 2)[:, None]
+    J[:, 13:16] = a2 * -np.cross(Nb, Xa) + b2 * (-np.cross(d, Nb) + np.cross(Nb, Xb))
+    J[:, 16:19] = a2 * Nb - b2 * Nb
+    return J
 
 
 def _movement(dx: np.ndarray) -> float:
@@ -275,12 +318,12 @@ def refine_with_point_maps(views: list[PointMapView], T_e1_c1: np.ndarray, T_e2_
     """
     from scipy.optimize import least_squares
 
-    start = tuple(check_shape(n, np.asarray(T, dtype=np.float64), (4, 4)) for n, T in
-                  (("T_e1_c1", T_e1_c1), ("T_e2_c2", T_e2_c2))) + (float(scale),) + (
+    initial = tuple(check_shape(n, np.asarray(T, dtype=np.float64), (4, 4)) for n, T in
+                    (("T_e1_c1", T_e1_c1), ("T_e2_c2", T_e2_c2))) + (float(scale),) + (
         check_shape("T_b1_b2", np.asarray(T_b1_b2, dtype=np.float64), (4, 4)),)
 
     def refused(reason: str, **kw) -> RefineResult:
-        return RefineResult(start[0], start[1], start[2], start[3], False, reason, **kw)
+        return RefineResult(*initial, False, reason, **kw)
 
     per_arm = [sum(1 for v in views if v.arm == a) for a in (1, 2)]
     if min(per_arm) < 2:
@@ -288,23 +331,25 @@ def refine_with_point_maps(views: list[PointMapView], T_e1_c1: np.ndarray, T_e2_
     rng = np.random.default_rng(seed)
     samples = [rng.choice(len(v.points_c), min(points_per_view, len(v.points_c)), replace=False)
                if len(v.points_c) else np.zeros(0, dtype=int) for v in views]
-    x = np.zeros(19)
+    targets = [rng.choice(len(v.points_c), min(TARGETS_PER_VIEW, len(v.points_c)), replace=False)
+               if len(v.points_c) else np.zeros(0, dtype=int) for v in views]
     x_scale = np.r_[[0.01] * 3, [0.005] * 3, [0.01] * 3, [0.005] * 3, [0.01], [0.01] * 3, [0.01] * 3]
-    rounds, corr = [], None
+    zero = np.zeros(19)
+    current, rounds, corr, sol = initial, [], None, None
     schedule = list(radii) + [radii[-1]] * max_fine_rounds
     for k, radius in enumerate(schedule):
-        T1, T2, s, Tb = _unpack(x, *start)
-        corr = _correspondences(views, samples, _camera_poses(views, T1, T2, Tb), s, Tb, radius)
+        T1, T2, s, Tb = current
+        corr = _correspondences(views, samples, targets, _camera_poses(views, T1, T2, Tb), s, Tb, radius)
         n = 0 if corr is None else len(corr[0])
-        if n >= MIN_RESIDUALS:
-            corr = _Pairs(corr, len(views))
-        else:
+        if n < MIN_RESIDUALS:
             return refused(f"the point maps overlap too little: {n} point pairs within {radius * 1e3:.0f} mm "
                            f"(needs {MIN_RESIDUALS})", rounds=rounds)
-        sol = least_squares(_residuals, x, args=(views, start, corr), loss="soft_l1", f_scale=ROBUST_KNEE_M,
-                            x_scale=x_scale, max_nfev=50)
-        moved = _movement(sol.x - x)
-        x, jac, fun = sol.x, sol.jac, sol.fun
+        corr = _Pairs(corr, len(views))
+        # each round solves for corrections of its own start, where the analytic Jacobian is exact
+        sol = least_squares(_residuals, zero, jac=_jacobian, args=(views, current, corr), loss="soft_l1",
+                            f_scale=ROBUST_KNEE_M, x_scale=x_scale, max_nfev=50, tr_solver="lsmr")
+        moved = _movement(sol.x)
+        current = _unpack(sol.x, *current)
         rounds.append({"radius_m": radius, "pairs": n, "rms_m": float(np.sqrt(np.mean(sol.fun ** 2))),
                        "moved_m": moved})
         if progress:
@@ -312,8 +357,8 @@ def refine_with_point_maps(views: list[PointMapView], T_e1_c1: np.ndarray, T_e2_
                      f"RMS {rounds[-1]['rms_m'] * 1e3:.2f} mm, moved {moved * 1e3:.2f} mm")
         if k >= len(radii) - 1 and moved < CONVERGED_M:
             break
-    r0 = _residuals(np.zeros(19), views, start, corr)
-    r1 = _residuals(x, views, start, corr)
+    r0 = _residuals(zero, views, initial, corr)
+    r1 = _residuals(zero, views, current, corr)
     va, vb = corr.va, corr.vb
     arm = np.array([v.arm for v in views])
     info = dict(rms_before_m=float(np.sqrt(np.mean(r0 ** 2))), rms_after_m=float(np.sqrt(np.mean(r1 ** 2))),
@@ -322,14 +367,24 @@ def refine_with_point_maps(views: list[PointMapView], T_e1_c1: np.ndarray, T_e2_
     # judged robustly (the median absolute distance), as the fit is: a few far pairs must not decide
     if np.median(np.abs(r1)) >= np.median(np.abs(r0)):
         return refused("the point maps agree no better after refinement", **info)
-    rot = np.degrees(np.linalg.norm(x[[0, 1, 2, 6, 7, 8, 13, 14, 15]].reshape(3, 3), axis=1)).max()
-    trans = np.linalg.norm(x[[3, 4, 5, 9, 10, 11, 16, 17, 18]].reshape(3, 3), axis=1).max()
-    if rot > MAX_ROT_CHANGE_DEG or trans > MAX_TRANS_CHANGE_M or abs(x[12]) > MAX_LOG_SCALE_CHANGE:
+    rot, trans, dlog = _change(initial, current)
+    if rot > MAX_ROT_CHANGE_DEG or trans > MAX_TRANS_CHANGE_M or abs(dlog) > MAX_LOG_SCALE_CHANGE:
         return refused(f"the refinement would move an output by {rot:.1f} deg / {trans * 1e3:.0f} mm / scale "
-                       f"{(np.exp(x[12]) - 1) * 100:+.1f} %, more than a correction of the joint solve", **info)
+                       f"{(np.exp(dlog) - 1) * 100:+.1f} %, more than a correction of the joint solve", **info)
     if info["cross_arm"] == 0:
         return refused("no point pairs between the two arms' views: T_b1_b2 cannot be refined", **info)
-    T1, T2, s, Tb = _unpack(x, *start)
+    fun, jac = sol.fun, sol.jac
     sigma = 1.4826 * np.median(np.abs(fun - np.median(fun)))  # robust spread of the residuals (m)
     cov = sigma ** 2 * np.linalg.pinv(jac.T @ jac)
-    return RefineResult(T1, T2, s, Tb, True, "", covariance=cov, **info)
+    return RefineResult(*current, True, "", covariance=cov, **info)
+
+
+def _change(a: tuple, b: tuple) -> tuple[float, float, float]:
+    """Largest rotation (deg) and translation (m) change between two ``(T_e1_c1, T_e2_c2, scale, T_b1_b2)``
+    and the log-scale change."""
+    from bimanual_app.transforms import rotation_angle_between
+
+    Ts = [(a[0], b[0]), (a[1], b[1]), (a[3], b[3])]
+    rot = max(float(np.degrees(rotation_angle_between(p[:3, :3], q[:3, :3]))) for p, q in Ts)
+    trans = max(float(np.linalg.norm(p[:3, 3] - q[:3, 3])) for p, q in Ts)
+    return rot, trans, float(np.log(b[2] / a[2]))

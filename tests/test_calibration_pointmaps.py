@@ -135,3 +135,26 @@ def test_cli_writes_the_refinement_and_can_skip_it(paper_scene, tmp_path, capsys
     cal = json.loads((tmp_path / "off" / "calibration.json").read_text())
     assert "point_maps" not in cal["info"] and cal["cloud"]["views_placed_by"] == "reconstruction"
     assert not (tmp_path / "off" / "point_maps.png").exists()
+
+
+def test_analytic_jacobian_matches_finite_differences():
+    from calibration._pointmaps import PointMapView, _jacobian, _Pairs, _residuals
+
+    rng = np.random.default_rng(0)
+    views = []
+    for v in range(6):
+        n = rng.normal(size=(50, 3))
+        views.append(PointMapView(1 if v < 3 else 2, make_T(so3_exp(rng.normal(size=3) * 0.3), rng.normal(size=3) * 0.2),
+                                  rng.uniform(-0.2, 0.2, (50, 3)) + [0, 0, 0.5], n / np.linalg.norm(n, axis=1, keepdims=True)))
+    start = (make_T(so3_exp([0.1, 0.2, 0.3]), [0.05, 0, 0.04]), make_T(so3_exp([0, -0.2, 0.1]), [0.06, 0.01, 0.03]),
+             0.8, make_T(so3_exp([0, 0, 3.0]), [0.7, 0, 0]))
+    va = np.repeat(np.arange(6), 40)
+    vb = (va + rng.integers(1, 6, len(va))) % 6  # pairs within each arm and across
+    pairs = _Pairs((va, rng.uniform(-0.2, 0.2, (len(va), 3)) + [0, 0, 0.5], vb,
+                    rng.uniform(-0.2, 0.2, (len(va), 3)) + [0, 0, 0.5], rng.normal(size=(len(va), 3))), 6)
+    J = _jacobian(np.zeros(19), views, start, pairs)
+    h = 1e-6
+    Jn = np.stack([(_residuals(h * e, views, start, pairs) - _residuals(-h * e, views, start, pairs)) / (2 * h)
+                   for e in np.eye(19)], axis=1)
+    assert np.abs(Jn).max() > 0.1
+    assert np.allclose(J, Jn, atol=1e-7)
