@@ -30,6 +30,8 @@ import numpy as np
 
 from bimanual_app.transforms import check_shape, make_T, so3_exp
 
+from ._fusion import pointmap_intrinsics
+
 __all__ = ["PointMapView", "RefineResult", "camera_frame_views", "refine_with_point_maps", "grid_normals"]
 
 #: correspondence radii (m) of the successive ICP rounds: coarse to fine; the last is repeated (up to
@@ -40,7 +42,7 @@ RADII = (0.03, 0.02, 0.012, 0.008)
 MAX_FINE_ROUNDS = 4
 CONVERGED_M = 2e-4
 LEVER_M = 0.5  # a rotation change is judged by what it does this far away (the scale's likewise)
-POINTS_PER_VIEW = 800  # sampled points per view that look for partners in every other view
+POINTS_PER_VIEW = 500  # sampled points per view that look for partners in every other view
 TARGETS_PER_VIEW = 6000  # points per view among which partners are looked for (point-to-plane needs no more)
 MIN_NORMAL_COS = 0.8  # partners whose normals differ more (about 37 deg) are on different surfaces
 ROBUST_KNEE_M = 0.003  # soft-L1 knee: residuals beyond 3 mm count less and less
@@ -60,12 +62,22 @@ class PointMapView:
         T_b_e: (4, 4) the arm's end-effector pose at this view (forward kinematics).
         points_c: (K, 3) points in the camera frame, reconstruction units.
         normals_c: (K, 3) unit normals in the camera frame (towards the camera).
+        index: (H, W) int, the point of each pixel (-1: none), or None when the map is not a grid.
+        intrinsics: (4,) ``fx, fy, cx, cy`` of the map's pixels (``_fusion.pointmap_intrinsics``), or None /
+            NaN when a pinhole does not fit it. With both, partners are found by projection; otherwise
+            by nearest neighbour.
     """
 
     arm: int
     T_b_e: np.ndarray
     points_c: np.ndarray
     normals_c: np.ndarray
+    index: np.ndarray | None = None
+    intrinsics: np.ndarray | None = None
+
+    @property
+    def projective(self) -> bool:
+        return self.index is not None and self.intrinsics is not None and bool(np.all(np.isfinite(self.intrinsics)))
 
 
 @dataclass
@@ -137,7 +149,10 @@ def camera_frame_views(pts3d_w: np.ndarray, T_w_c: np.ndarray, keep: np.ndarray,
         Pc = (P[v].astype(np.float64) - T[v, :3, 3]) @ T[v, :3, :3]
         N = grid_normals(Pc)
         ok = keep[v] & np.all(np.isfinite(Pc), axis=-1) & np.all(np.isfinite(N), axis=-1) & (Pc[..., 2] > 0)
-        out.append(PointMapView(int(arms[v]), E[v], Pc[ok], N[ok]))
+        index = np.full(ok.shape, -1, dtype=np.int64)
+        index[ok] = np.arange(int(ok.sum()))
+        finite = np.all(np.isfinite(Pc), axis=-1) & (np.nan_to_num(Pc[..., 2], nan=-1.0) > 0)
+        out.append(PointMapView(int(arms[v]), E[v], Pc[ok], N[ok], index, pointmap_intrinsics(Pc, finite)))
     return out
 
 
@@ -162,6 +177,60 @@ def _robot_column(P: np.ndarray, Tb: np.ndarray, radius: float = 0.15, above: fl
         local = (P - T[:3, 3]) @ T[:3, :3]
         mask |= (np.hypot(local[:, 0], local[:, 1]) < radius) & (local[:, 2] > above)
     return mask
+
+
+def _projective_correspondences(views, samples, Tc, scale, Tb, radius):
+    """As :func:`_correspondences`, the partner of a sample being the point at the pixel where it projects
+    in the other view (projective data association, as in KinectFusion's ICP): no search, as every view
+    is an organised map with a fitted pinhole."""
+    va, ia, vb, ib = [], [], [], []
+    R, t = Tc[:, :3, :3], Tc[:, :3, 3]
+    for a, v in enumerate(views):
+        s = samples[a]
+        Pa = scale * v.points_c[s] @ R[a].T + t[a]
+        Na = v.normals_c[s] @ R[a].T
+        free = ~_robot_column(Pa, Tb)
+        for b, u in enumerate(views):
+            if a == b:
+                continue
+            c = (Pa - t[b]) @ R[b] / scale  # in camera b, its own units
+            z = c[:, 2]
+            front = free & (z > 1e-9)
+            zs = np.where(front, z, 1.0)
+            fx, fy, cx, cy = u.intrinsics
+            col = np.round(fx * c[:, 0] / zs + cx)
+            row = np.round(fy * c[:, 1] / zs + cy)
+            H, W = u.index.shape
+            inside = front & (col >= 0) & (col < W) & (row >= 0) & (row < H)
+            j = np.full(len(s), -1, dtype=np.int64)
+            j[inside] = u.index[row[inside].astype(np.int64), col[inside].astype(np.int64)]
+            hit = np.flatnonzero(j >= 0)
+            if not len(hit):
+                continue
+            Xb = scale * u.points_c[j[hit]] @ R[b].T + t[b]
+            Nb = u.normals_c[j[hit]] @ R[b].T
+            ok = (np.linalg.norm(Pa[hit] - Xb, axis=1) < radius) & (np.abs(np.sum(Na[hit] * Nb, axis=1)) >= MIN_NORMAL_COS)
+            n = int(ok.sum())
+            if n:
+                va.append(np.full(n, a)), ia.append(s[hit[ok]]), vb.append(np.full(n, b)), ib.append(j[hit[ok]])
+    return _gather(views, va, ia, vb, ib)
+
+
+def _gather(views, va, ia, vb, ib):
+    """``(va, pa, vb, pb, nb)`` from per-pair lists of view and point indices, or None when empty."""
+    if not va:
+        return None
+    va, ia, vb, ib = (np.concatenate(z) for z in (va, ia, vb, ib))
+    pa = np.empty((len(va), 3))
+    pb = np.empty((len(vb), 3))
+    nb = np.empty((len(vb), 3))
+    for k, v in enumerate(views):
+        m = va == k
+        pa[m] = v.points_c[ia[m]]
+        m = vb == k
+        pb[m] = v.points_c[ib[m]]
+        nb[m] = v.normals_c[ib[m]]
+    return va, pa, vb, pb, nb
 
 
 def _correspondences(views, samples, targets, Tc, scale, Tb, radius):
@@ -193,20 +262,7 @@ def _correspondences(views, samples, targets, Tc, scale, Tb, radius):
             n = int(ok.sum())
             if n:
                 va.append(np.full(n, a)), ia.append(s[ok]), vb.append(np.full(n, b)), ib.append(jj[ok])
-    if not va:
-        return None
-    va, ia, vb, ib = (np.concatenate(z) for z in (va, ia, vb, ib))
-    # gather per view (vectorised over the pairs of each view)
-    pa = np.empty((len(va), 3))
-    pb = np.empty((len(vb), 3))
-    nb = np.empty((len(vb), 3))
-    for k, v in enumerate(views):
-        m = va == k
-        pa[m] = v.points_c[ia[m]]
-        m = vb == k
-        pb[m] = v.points_c[ib[m]]
-        nb[m] = v.normals_c[ib[m]]
-    return va, pa, vb, pb, nb
+    return _gather(views, va, ia, vb, ib)
 
 
 def _transform_grouped(R: np.ndarray, t: np.ndarray, p: np.ndarray, bounds: np.ndarray, s: float = 1.0) -> np.ndarray:
@@ -252,6 +308,12 @@ def _geometry(x, views, start, pairs: _Pairs):
     return R, t, s, Xa, Xb, Nb
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (K, 3) arrays (np.cross's generic broadcasting is 3x slower here)."""
+    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
+
+
 def _residuals(x, views, start, pairs: _Pairs) -> np.ndarray:
     """(P,) signed point-to-plane distances (m): sample ``X_a`` from the tangent plane of its partner."""
     _, _, _, Xa, Xb, Nb = _geometry(x, views, start, pairs)
@@ -268,26 +330,27 @@ def _jacobian(x, views, start, pairs: _Pairs) -> np.ndarray:
     ``T_b1_b2`` gives ``dX = -X x w_b``, ``dN = -N x w_b`` for the secondary's views; the log-scale gives
     ``dX = X - t``. Checked against finite differences in the tests."""
     R, t, s, Xa, Xb, Nb = _geometry(x, views, start, pairs)
-    d = Xa - Xb
     arm = np.array([v.arm for v in views])
     Rt = np.swapaxes(R, 1, 2)
-    qa = s * pairs.pa
     nb_a = _transform_grouped(Rt, None, Nb, pairs.ba)  # N_b in camera a
-    # in camera b: the partner's own normal and point, and d
-    nb_b = pairs.nb[pairs.inv_ob]
+    nb_b = pairs.nb[pairs.inv_ob]  # the partner's normal and point in its own camera b
     qb = s * pairs.pb[pairs.inv_ob]
-    d_b = _transform_grouped(Rt, None, d[pairs.ob], pairs.bb)[pairs.inv_ob]
-    J = np.zeros((len(d), 19))
+    d_b = _transform_grouped(Rt, None, (Xa - Xb)[pairs.ob], pairs.bb)[pairs.inv_ob]
+    # sample side: -(n_b in a) x (s p_a); partner side: -(d x n_b) + n_b x (s p_b) = n_b x (d + s p_b) in b
+    rot_a = -_cross(nb_a, s * pairs.pa)
+    rot_b = _cross(nb_b, d_b + qb)
+    J = np.zeros((len(Xa), 19))
+    am, bm = arm[pairs.va], arm[pairs.vb]
     for m, k0 in ((1, 0), (2, 6)):
-        on_a = (arm[pairs.va] == m)[:, None]
-        on_b = (arm[pairs.vb] == m)[:, None]
-        J[:, k0:k0 + 3] = on_a * -np.cross(nb_a, qa) + on_b * (-np.cross(d_b, nb_b) + np.cross(nb_b, qb))
+        on_a, on_b = (am == m)[:, None].astype(np.float64), (bm == m)[:, None].astype(np.float64)
+        J[:, k0:k0 + 3] = on_a * rot_a + on_b * rot_b
         J[:, k0 + 3:k0 + 6] = on_a * nb_a - on_b * nb_b
     J[:, 12] = np.sum(Nb * ((Xa - t[pairs.va]) - (Xb - t[pairs.vb])), axis=1)
-    a2 = (arm[pairs.va] == 2)[:, None]
-    b2 = (arm[pairs.vb] == 2)[:, None]
-    J[:, 13:16] = a2 * -np.cross(Nb, Xa) + b2 * (-np.cross(d, Nb) + np.cross(Nb, Xb))
-    J[:, 16:19] = a2 * Nb - b2 * Nb
+    # the base moves the secondary's views: -N_b x X_a for a sample, N_b x X_a for a partner (they cancel
+    # when both are the secondary's: a rigid motion of both views changes nothing)
+    sign = (bm == 2).astype(np.float64) - (am == 2)
+    J[:, 13:16] = sign[:, None] * _cross(Nb, Xa)
+    J[:, 16:19] = -sign[:, None] * Nb
     return J
 
 
@@ -333,13 +396,16 @@ def refine_with_point_maps(views: list[PointMapView], T_e1_c1: np.ndarray, T_e2_
                if len(v.points_c) else np.zeros(0, dtype=int) for v in views]
     targets = [rng.choice(len(v.points_c), min(TARGETS_PER_VIEW, len(v.points_c)), replace=False)
                if len(v.points_c) else np.zeros(0, dtype=int) for v in views]
+    projective = all(v.projective for v in views)
     x_scale = np.r_[[0.01] * 3, [0.005] * 3, [0.01] * 3, [0.005] * 3, [0.01], [0.01] * 3, [0.01] * 3]
     zero = np.zeros(19)
     current, rounds, corr, sol = initial, [], None, None
     schedule = list(radii) + [radii[-1]] * max_fine_rounds
     for k, radius in enumerate(schedule):
         T1, T2, s, Tb = current
-        corr = _correspondences(views, samples, targets, _camera_poses(views, T1, T2, Tb), s, Tb, radius)
+        Tc = _camera_poses(views, T1, T2, Tb)
+        corr = (_projective_correspondences(views, samples, Tc, s, Tb, radius) if projective
+                else _correspondences(views, samples, targets, Tc, s, Tb, radius))
         n = 0 if corr is None else len(corr[0])
         if n < MIN_RESIDUALS:
             return refused(f"the point maps overlap too little: {n} point pairs within {radius * 1e3:.0f} mm "
