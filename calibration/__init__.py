@@ -2,7 +2,8 @@
 second base, and the metric scene cloud in b1 (docs/calibration.md).
 
 Public API:
-    calibrate(scene, method="absolute", options=None) -> CalibrationResult     (a loaded Scene)
+    calibrate(scene, method="absolute", options=None, progress=None) -> CalibrationResult  (a loaded Scene;
+        with point maps, the joint solve is refined with them: CalibrationOptions.point_maps)
     solve_bijcr(T_b1_e, T_w_c1, T_b2_e, T_w_c2, method=..., options=None) -> CalibrationResult  (arrays)
     solve_single_arm(T_b_e, T_w_c, method=..., options=None) -> dict            (one arm, its own scale)
     scene_cloud(scene, result, conf_threshold=None) -> (points_b1, colors, info)

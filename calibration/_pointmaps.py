@@ -35,14 +35,16 @@ from ._fusion import pointmap_intrinsics
 __all__ = ["PointMapView", "RefineResult", "camera_frame_views", "refine_with_point_maps", "grid_normals"]
 
 #: correspondence radii (m) of the successive ICP rounds: coarse to fine; the last is repeated (up to
-#: MAX_FINE_ROUNDS times) until a round moves no point of the workspace by more than CONVERGED_M. Point-to-plane
+#: MAX_FINE_ROUNDS times) until a round moves no point of the workspace by more than CONVERGED_M (from the
+#: second round on, a round that moves less ends the refinement: the estimate has settled). Point-to-plane
 #: pairs slide freely along the table, so what corrects the in-plane error is re-matching at object edges:
 #: slow, round by round, after the coarse error is gone.
 RADII = (0.03, 0.02, 0.012, 0.008)
 MAX_FINE_ROUNDS = 4
 CONVERGED_M = 2e-4
 LEVER_M = 0.5  # a rotation change is judged by what it does this far away (the scale's likewise)
-POINTS_PER_VIEW = 500  # sampled points per view that look for partners in every other view
+POINTS_PER_VIEW = 800  # sampled points per view that look for partners in every other view
+PARTNERS_PER_ARM = 6  # each view is matched with the 4 nearest cameras of each arm (see _partner_views)
 TARGETS_PER_VIEW = 6000  # points per view among which partners are looked for (point-to-plane needs no more)
 MIN_NORMAL_COS = 0.8  # partners whose normals differ more (about 37 deg) are on different surfaces
 ROBUST_KNEE_M = 0.003  # soft-L1 knee: residuals beyond 3 mm count less and less
@@ -179,20 +181,35 @@ def _robot_column(P: np.ndarray, Tb: np.ndarray, radius: float = 0.15, above: fl
     return mask
 
 
+def _partner_views(views, Tc: np.ndarray, per_arm: int = PARTNERS_PER_ARM) -> list[list[int]]:
+    """For each view, the views it is matched with: the ``per_arm`` nearest cameras (by centre) of each
+    arm. Near cameras overlap most; both arms are always among them (the pairs across the arms are what
+    determine T_b1_b2). Every pair of views would cost twice as much and add views that barely overlap."""
+    c = Tc[:, :3, 3]
+    arm = np.array([v.arm for v in views])
+    out = []
+    for a in range(len(views)):
+        d = np.linalg.norm(c - c[a], axis=1)
+        d[a] = np.inf
+        out.append(sorted(int(b) for m in (1, 2) for b in np.flatnonzero(arm == m)[np.argsort(d[arm == m])][:per_arm]
+                          if b != a))
+    return out
+
+
 def _projective_correspondences(views, samples, Tc, scale, Tb, radius):
     """As :func:`_correspondences`, the partner of a sample being the point at the pixel where it projects
     in the other view (projective data association, as in KinectFusion's ICP): no search, as every view
     is an organised map with a fitted pinhole."""
     va, ia, vb, ib = [], [], [], []
     R, t = Tc[:, :3, :3], Tc[:, :3, 3]
+    partners = _partner_views(views, Tc)
     for a, v in enumerate(views):
         s = samples[a]
         Pa = scale * v.points_c[s] @ R[a].T + t[a]
         Na = v.normals_c[s] @ R[a].T
         free = ~_robot_column(Pa, Tb)
-        for b, u in enumerate(views):
-            if a == b:
-                continue
+        for b in partners[a]:
+            u = views[b]
             c = (Pa - t[b]) @ R[b] / scale  # in camera b, its own units
             z = c[:, 2]
             front = free & (z > 1e-9)
@@ -243,15 +260,15 @@ def _correspondences(views, samples, targets, Tc, scale, Tb, radius):
 
     placed = [scale * v.points_c[g] @ T[:3, :3].T + T[:3, 3] for v, T, g in zip(views, Tc, targets)]
     trees = [cKDTree(p) for p in placed]
+    partners = _partner_views(views, Tc)
     va, ia, vb, ib = [], [], [], []
     for a, v in enumerate(views):
         s = samples[a]
         Pa = scale * v.points_c[s] @ Tc[a, :3, :3].T + Tc[a, :3, 3]
         Na = v.normals_c[s] @ Tc[a, :3, :3].T
         free = ~_robot_column(Pa, Tb)
-        for b, u in enumerate(views):
-            if a == b:
-                continue
+        for b in partners[a]:
+            u = views[b]
             d, j = trees[b].query(Pa, distance_upper_bound=radius)
             ok = np.isfinite(d) & free
             if not ok.any():
@@ -421,7 +438,7 @@ def refine_with_point_maps(views: list[PointMapView], T_e1_c1: np.ndarray, T_e2_
         if progress:
             progress(f"point-map refinement: {radius * 1e3:.0f} mm round, {n} point pairs, "
                      f"RMS {rounds[-1]['rms_m'] * 1e3:.2f} mm, moved {moved * 1e3:.2f} mm")
-        if k >= len(radii) - 1 and moved < CONVERGED_M:
+        if k >= 1 and moved < CONVERGED_M:  # settled: finer radii would only re-select the same pairs
             break
     r0 = _residuals(zero, views, initial, corr)
     r1 = _residuals(zero, views, current, corr)

@@ -12,7 +12,10 @@ DESCRIPTION = (
     "a 1-sigma uncertainty. Writes DIR/calibration.json, DIR/scene_b1.ply (metric cloud in b1), "
     "DIR/calibration.png and ROS exports under DIR/ros/. Methods: absolute (default: joint refinement on absolute "
     "poses, outlier views dropped, robust loss), paper (the paper's closed form + gradient refinement), "
-    "paper-norefine (closed form only). Ground truth, when present, is only used to print an evaluation."
+    "paper-norefine (closed form only). When the reconstruction has point maps, the solve is then refined so "
+    "that the views' point maps, each placed by its arm's kinematics, lie on each other (DIR/point_maps.png), "
+    "and the cloud is built from the views placed that way (--no-point-maps: skip). Ground truth, when "
+    "present, is only used to print an evaluation."
 )
 METHODS = ("absolute", "paper", "paper-norefine")
 

@@ -158,3 +158,21 @@ def test_analytic_jacobian_matches_finite_differences():
                    for e in np.eye(19)], axis=1)
     assert np.abs(Jn).max() > 0.1
     assert np.allclose(J, Jn, atol=1e-7)
+
+
+def test_maps_a_pinhole_does_not_fit_are_matched_by_nearest_neighbour(paper_scene, monkeypatch):
+    import calibration._pointmaps as pm
+    from bimanual_app.scene import load_scene
+    from calibration import CalibrationOptions, calibrate, scene_cloud
+
+    scene = load_scene(paper_scene)
+    plain = calibrate(scene, options=CalibrationOptions(point_maps=False))
+    monkeypatch.setattr(pm, "pointmap_intrinsics", lambda P, ok: np.full(4, np.nan))
+    used = []
+    real = pm._correspondences
+    monkeypatch.setattr(pm, "_correspondences", lambda *a, **k: used.append(1) or real(*a, **k))
+    res = calibrate(scene)
+    assert used and res.info["point_maps"]["accepted"], res.info["point_maps"]["reason"]
+    e_plain = _cloud_error_mm(paper_scene, scene_cloud(scene, plain)[0])
+    e_ref = _cloud_error_mm(paper_scene, scene_cloud(scene, res)[0])
+    assert e_ref < 0.3 * e_plain, (e_plain, e_ref)
