@@ -137,7 +137,6 @@ def refine_point_maps(scene, result: CalibrationResult, options: CalibrationOpti
     from ._closed_form import pair_motions, scaled
     from ._cloud import auto_conf_threshold
     from ._pointmaps import camera_frame_views, refine_with_point_maps
-    from ._selfmask import wrist_rig_pixels
     from ._solve import ARM_NAMES, _residual_summary
 
     opts = options or CalibrationOptions()
@@ -149,9 +148,7 @@ def refine_point_maps(scene, result: CalibrationResult, options: CalibrationOpti
         conf = rec.conf[rows]
         keep &= (conf > auto_conf_threshold(rec.conf)) & (conf > 0)
     for arm in scene.arms:  # each arm's own fingers move with the camera: not scene points
-        mine = np.flatnonzero(np.asarray(rec.arm) == arm.index)
-        rig = wrist_rig_pixels(rec.pts3d[mine], rec.T_w_c[mine])
-        keep[arms == arm.index] &= ~rig[None]
+        keep[arms == arm.index] &= ~_rig_pixels(scene, result, arm)[None]
     views = camera_frame_views(rec.pts3d[rows], rec.T_w_c[rows], keep, arms, E)
     before = {"T_e1_c1": result.T_e1_c1, "T_e2_c2": result.T_e2_c2, "scale": result.scale,
               "T_b1_b2": result.T_b1_b2, "T_b1_w": result.T_b1_w, "T_b2_w": result.T_b2_w,
@@ -240,11 +237,8 @@ def scene_cloud(scene, result: CalibrationResult, conf_threshold: float | None =
         pts3d, T_w_c = _kinematic_anchor(pts3d, T_w_c, result, arms, E)
     rig_pixels = {}
     if wrist_rig:
-        from ._selfmask import wrist_rig_pixels
-
         for arm in scene.arms:  # each arm's own fingers, found over all its registered views
-            mine = np.flatnonzero(np.asarray(rec.arm) == arm.index)
-            mask = wrist_rig_pixels(rec.pts3d[mine], rec.T_w_c[mine])
+            mask = _rig_pixels(scene, result, arm)
             rig_pixels[arm.name] = int(mask.sum())
             views = np.flatnonzero(np.asarray(rec.arm)[rows] == arm.index)
             ys, xs = np.nonzero(mask)
@@ -272,6 +266,19 @@ def scene_cloud(scene, result: CalibrationResult, conf_threshold: float | None =
         colors = None if colors is None else colors[keep]
         info["points"] = int(len(points))
     return points, colors, info
+
+
+def _rig_pixels(scene, result, arm) -> np.ndarray:
+    """(H, W) bool: ``arm``'s wrist-rig pixels (``_selfmask.wrist_rig_pixels`` over all its registered views),
+    computed once per result (the refinement and the cloud both need them)."""
+    from ._selfmask import wrist_rig_pixels
+
+    cache = result.diagnostics.setdefault("wrist_rig_pixels", {})
+    if arm.name not in cache:
+        rec = scene.reconstruction
+        mine = np.flatnonzero(np.asarray(rec.arm) == arm.index)
+        cache[arm.name] = wrist_rig_pixels(rec.pts3d[mine], rec.T_w_c[mine])
+    return cache[arm.name]
 
 
 def _kinematic_anchor(pts3d_w: np.ndarray, T_w_c: np.ndarray, result, arms: np.ndarray, T_b_e: np.ndarray

@@ -35,8 +35,8 @@ from ._fusion import pointmap_intrinsics
 __all__ = ["PointMapView", "RefineResult", "camera_frame_views", "refine_with_point_maps", "grid_normals"]
 
 #: correspondence radii (m) of the successive ICP rounds: coarse to fine; the last is repeated (up to
-#: MAX_FINE_ROUNDS times) until a round moves no point of the workspace by more than CONVERGED_M (from the
-#: second round on, a round that moves less ends the refinement: the estimate has settled). Point-to-plane
+#: MAX_FINE_ROUNDS times) until a round moves no point of the workspace by more than CONVERGED_M (any round
+#: that moves less ends the refinement: the estimate has settled, e.g. point maps that already agree). Point-to-plane
 #: pairs slide freely along the table, so what corrects the in-plane error is re-matching at object edges:
 #: slow, round by round, after the coarse error is gone.
 RADII = (0.03, 0.02, 0.012, 0.008)
@@ -438,7 +438,7 @@ def refine_with_point_maps(views: list[PointMapView], T_e1_c1: np.ndarray, T_e2_
         if progress:
             progress(f"point-map refinement: {radius * 1e3:.0f} mm round, {n} point pairs, "
                      f"RMS {rounds[-1]['rms_m'] * 1e3:.2f} mm, moved {moved * 1e3:.2f} mm")
-        if k >= 1 and moved < CONVERGED_M:  # settled: finer radii would only re-select the same pairs
+        if moved < CONVERGED_M:  # settled: finer radii would only re-select the same pairs
             break
     r0 = _residuals(zero, views, initial, corr)
     r1 = _residuals(zero, views, current, corr)
