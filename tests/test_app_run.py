@@ -32,6 +32,11 @@ def test_run_calibrates_segments_and_reports_then_reuses_cache(scene, tmp_path, 
     assert len(imgs) >= 3  # capture preview, calibration figure, segments figure
     assert all(base64.b64decode(b)[:8] == b"\x89PNG\r\n\x1a\n" for b in imgs)
     assert "T_e1_c1" in page and "uncertainty" in page and "scale" in page
+    # the point-map refinement's verdict, and its figure when it ran
+    cal = json.loads((out / "calibration" / "calibration.json").read_text())
+    pm = cal["info"]["point_maps"]
+    assert ("Point-map refinement applied" if pm["accepted"] else "Point-map refinement not applied") in page
+    assert (out / "calibration" / "point_maps.png").exists() == ("Distances between overlapping views" in page)
     # the segments table reads segments.json: every object's box has numbers
     seg = json.loads((out / "segments" / "segments.json").read_text())
     for o in seg["objects"]:

@@ -96,6 +96,16 @@ def _calibration_section(d: Path) -> str:
     if isinstance(ev, dict):
         out.append("<p><b>Against ground truth (evaluation only):</b> " + html.escape(json.dumps(ev)) + "</p>")
     out.append(_embed(d / "calibration.png", "Both arms' end effectors and calibrated cameras in b1, and the metric cloud"))
+    pm = (cal.get("info") or {}).get("point_maps") if isinstance(cal.get("info"), dict) else None
+    if isinstance(pm, dict):
+        if pm.get("accepted"):
+            out.append(f"<p>Point-map refinement applied: overlapping views {_fmt(pm.get('median_before_mm', float('nan')), ' mm', 2)}"
+                       f" &rarr; {_fmt(pm.get('median_after_mm', float('nan')), ' mm', 2)} apart (median); the cloud is placed"
+                       " by the kinematics.</p>")
+        else:
+            out.append(f"<p>Point-map refinement not applied: {html.escape(str(pm.get('reason', '')))}.</p>")
+        if (d / "point_maps.png").exists():
+            out.append(_embed(d / "point_maps.png", "Distances between overlapping views before and after the point-map refinement"))
     return "\n".join(out)
 
 
