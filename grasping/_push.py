@@ -63,6 +63,11 @@ class PushParams:
         the scene without what lies within ``cut_radius`` of the object, by ``contact_margin``: the map and
         margin the task checks its approach and squeeze with (``bimanual_app.tasks``: ``TaskMotion``'s
         ``cut_radius``, ``CONTACT_MARGIN``).
+    beyond, beyond_min_points: a face none of whose own points was seen (only filled in by the symmetric
+        completion) is pushed only when the scene was seen beyond it: at least ``beyond_min_points`` points of
+        the rest of the scene (table, neighbours) lie ``beyond`` (from, to; m) past it, across its width.
+        Otherwise the cameras saw nothing there, and the object may go on (a box seen over half its length
+        ends where the views end: pushed there, the fingertips meet the box's unseen top).
     """
 
     rolls: tuple[float, ...] = (0.0, np.pi / 2, np.pi / 4, -np.pi / 4)
@@ -70,6 +75,8 @@ class PushParams:
     tilts: tuple[float, ...] = (np.deg2rad(-15.0), 0.0, np.deg2rad(20.0), np.deg2rad(40.0), np.deg2rad(55.0),
                                 np.deg2rad(70.0), np.deg2rad(80.0), np.deg2rad(88.0))
     swivels: tuple[float, ...] = (0.0, np.deg2rad(25.0), np.deg2rad(-25.0))
+    leans: tuple[float, ...] = (np.deg2rad(25.0), np.deg2rad(-25.0))
+    lean_min_tilt: float = np.deg2rad(50.0)
     press: float = 0.008
     standoff: float = 0.006
     pad_depth: float = 0.008
@@ -82,6 +89,8 @@ class PushParams:
     approach: float = 0.09
     cut_radius: float = 0.015
     contact_margin: float = 0.003
+    beyond: tuple[float, float] = (0.01, 0.15)
+    beyond_min_points: int = 50
 
 
 def _without_near(octree: SceneOctree, points: np.ndarray, radius: float) -> SceneOctree:
@@ -123,7 +132,7 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
         tips.append(c[np.argsort(-c[:, 2])[:4]])
     all_corners = np.concatenate([s.corners_g(w) for s in gripper.shapes])
     st = stats if stats is not None else {}
-    for k in ("faces_seen", "candidates", "off_face", "unseen", "outside_cone", "near_table", "hits_object", "hits_scene", "kept"):
+    for k in ("faces_seen", "unseen_beyond", "candidates", "off_face", "unseen", "outside_cone", "near_table", "hits_object", "hits_scene", "kept"):
         st[k] = 0
     rows = []  # (T, face axis, face sign, height fraction, tilt, pad alignment, contact width, n, seen, contact)
     for axis in (0, 1):
@@ -137,6 +146,15 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
             if near_face.sum() < 2 * params.min_pad_points:
                 continue  # a face the cameras did not see: no blind pushes
             st["faces_seen"] += 1
+            if not (near_face & (N @ n > 0.7) & geo.observed).any():
+                # a face only completed by symmetry: pushed only where the scene beyond it was seen
+                ro = others.points - geo.centre
+                a_o = ro @ n
+                beyond = ((a_o > half + params.beyond[0]) & (a_o < half + params.beyond[1])
+                          & (np.abs(ro @ t) < 0.5 * ext[1 - axis]))
+                if beyond.sum() < params.beyond_min_points:
+                    st["unseen_beyond"] += 1
+                    continue
             # the face's depth from its own points (normals along n), not from the sides' edge points near it
             own_face = near_face & (N @ n > 0.7)
             face_off = float(np.median(along[own_face])) if own_face.sum() >= params.min_pad_points \
@@ -156,10 +174,17 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
                 c = geo.centre + face_off * n + hf * 0.5 * ext[2] * up
                 frames = []
                 for tilt in params.tilts:
-                    for swivel in params.swivels:
+                    turns = [(sw, 0.0) for sw in params.swivels]
+                    if tilt >= params.lean_min_tilt:
+                        turns += [(0.0, ln) for ln in params.leans]
+                    for swivel, lean in turns:
                         # swivel: the approach turned about the vertical, away from the face normal
                         h_dir = np.cos(swivel) * n + np.sin(swivel) * t
                         z = -np.cos(tilt) * h_dir - np.sin(tilt) * up
+                        # lean: the approach turned about the face normal, its top towards t (the pad's
+                        # plane stays on the face): an arm beside the face, not in front of it, carries a
+                        # steep gripper up only when it leans away from the arm's base
+                        z = np.cos(lean) * z + np.sin(lean) * np.cross(n, z) + (1 - np.cos(lean)) * (n @ z) * n
                         # the fingers are closed into one pad (2 x 2 cm for the Piper), so the press is
                         # symmetric about the gripper whatever its roll about z; the rolls only help the arm
                         # reach it

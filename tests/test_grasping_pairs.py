@@ -276,3 +276,51 @@ def test_push_contacts_are_clear_of_the_scene_where_the_task_moves_them():
     cut = SceneOctree(rest[cKDTree(P[L == 0]).query(rest)[0] > cut_radius], MAP_RESOLUTION)
     for T in (push.T_b1_g, pressed):
         assert not col.collides(cut, T, push.width, swept=False, margin=CONTACT_MARGIN).any()
+
+
+def _push_faces(P, L):
+    """Push contacts on object 0 of the cloud: (contacts, stats, the box's axes)."""
+    from grasping import PushParams, SceneOctree, estimate_support, object_geometry, push_contacts
+
+    sup = estimate_support(P, L)
+    geo = object_geometry(0, P[L == 0], sup, background=P[L < 0])
+    g = load_gripper()
+    stats: dict = {}
+    push = push_contacts(geo, sup, g, GripperCollider(g), SceneOctree(P[L != 0], PlanParams().octree_resolution),
+                         PushParams(), stats)
+    return push, stats, geo
+
+
+def test_a_face_only_filled_in_is_pushed_only_where_the_scene_beyond_it_was_seen():
+    """A carton seen over part of its length ends, in the cloud, where the views end: the face there was
+    never seen and nothing was seen beyond it, so no push lands on it (the real box goes on). A far face
+    hidden from the cameras by the box itself, with the table seen beyond it, is still pushed."""
+    box = Obj("box", (0.3, 0.0), (0.16, 0.32, 0.10), 0.0)
+    P, L = make_cloud([box], table_size=(0.8, 0.8))
+    # the views end at y = -0.05: nothing of the box or of the table beyond it was seen
+    cut = P[:, 1] > -0.05
+    push, stats, geo = _push_faces(P[cut], L[cut])
+    assert stats["unseen_beyond"] == 1
+    out = -np.sign(push.extra["squeeze"][:, 1])  # the pushed face's outward normal along y
+    assert len(push) and not np.any((out < 0) & (np.abs(push.extra["squeeze"][:, 1]) > 0.9))
+    # the box's -y face (y = -0.16) not seen, the table beyond it seen: pushed from the completed face
+    hidden = (L == 0) & (P[:, 1] < -0.16 + 0.004)
+    push, stats, _ = _push_faces(P[~hidden], L[~hidden])
+    assert stats["unseen_beyond"] == 0
+    assert np.any(push.extra["squeeze"][:, 1] > 0.9)  # pressing the hidden face towards +y
+
+
+def test_steep_push_contacts_lean_about_the_face_normal():
+    """A steep gripper (fingers hanging beside the face) also comes leaned about the face normal: its
+    approach turned along the face, the pad still flat on it. An arm beside the face rather than in front
+    of it carries such a contact up; the plain tilts and swivels all keep the approach in the vertical
+    plane of the face normal there."""
+    P, L = make_cloud([Obj("box", (0.3, 0.0), (0.16, 0.32, 0.10), 0.0)], table_size=(0.8, 0.8))
+    push, _, geo = _push_faces(P, L)
+    n = -push.extra["squeeze"]  # outward face normals
+    z = push.T_b1_g[:, :3, 2]
+    up = np.array([0.0, 0.0, 1.0])
+    t = np.cross(up, n)
+    steep = -(z @ up) > np.cos(np.deg2rad(45))
+    along_face = np.abs(np.einsum("ij,ij->i", z, t))
+    assert np.any(steep & (along_face > np.sin(np.deg2rad(20))))

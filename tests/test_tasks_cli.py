@@ -144,7 +144,10 @@ def test_no_plan_in_time_fails_cleanly_and_replaces_an_old_result(fixture_dirs, 
 def test_push_pair_squeezes_lifts_and_lets_go_before_retreating(tmp_path, monkeypatch):
     """A carton too wide for one gripper, planned through the real grasp stage: a push pair squeezes it,
     lifts, holds and places it, then undoes the squeeze (release) before retreating; the preview in the
-    true world holds it."""
+    true world holds it. The true carton is 4 mm larger on every side than its points say (a segment
+    misses the last millimetres of each edge): the approach stops short of the faces and the squeeze
+    presses from the fingertips, not from the gripper's origin, so the fingers neither land on its top nor
+    dig into it."""
     import open3d as o3d
 
     from bimanual_app.io_utils import write_json
@@ -154,7 +157,7 @@ def test_push_pair_squeezes_lifts_and_lets_go_before_retreating(tmp_path, monkey
     monkeypatch.setenv("BIJCR_APPROVAL_KEY", "test-key")
     box = {"centre": [0.30, 0.0, 0.05], "size": [0.16, 0.26, 0.10], "mass": 0.8}
     truth = [{"id": 0, "kind": "box", "shape": "box", "T_b1_o": make_T(np.eye(3), box["centre"]),
-              "size": box["size"], "mass": box["mass"]}]
+              "size": [box["size"][0] + 0.008, box["size"][1] + 0.008, box["size"][2]], "mass": box["mass"]}]
     scene = tmp_path / "scene"
     _, cal = _scene_folder(scene, name="carton", objects=truth)
     rng = np.random.default_rng(0)
@@ -177,6 +180,21 @@ def test_push_pair_squeezes_lifts_and_lets_go_before_retreating(tmp_path, monkey
     names = [p["phase"] for p in rec["plans"]]
     assert names == ["reach", "approach", "squeeze", "lift", "hold", "place", "release", "retreat"]
     assert rec["preview"]["checks"]["hold"]["max_rise_m"] >= 0.10
+    # the approach ends PUSH_STANDOFF (>= 5 mm) short of the contact, the squeeze at least ``press`` past it
+    from bimanual_app.robots import load_robot
+    from bimanual_app.tasks._planners import PUSH_STANDOFF
+
+    assert PUSH_STANDOFF >= 0.005
+    robot = load_robot("piper")
+    plan = np.load(out / "plan.npz")
+    ends = np.cumsum([p["duration_s"] for p in rec["plans"]])
+    for arm, g in rec["plan"]["info"]["grasps"].items():
+        T_b1_b = np.eye(4) if arm == "primary" else np.asarray(cal["T_b1_b2"])
+        times, q = plan[f"{arm}/times"], plan[f"{arm}/q"]
+        at = [T_b1_b @ robot.fk_link(q[np.argmin(np.abs(times - ends[k]))], robot.tcp_link) for k in (1, 2)]
+        contact = np.asarray(g["T_b1_g"])[:3, 3]
+        assert abs(np.linalg.norm(at[0][:3, 3] - contact) - PUSH_STANDOFF) < 0.002, arm
+        assert np.linalg.norm(at[1][:3, 3] - contact) >= g["press"] - 0.002, arm
 
 
 def _with_alternative(work, tmp_path):

@@ -129,3 +129,26 @@ def test_segment_stage_uses_the_scene_masks_when_there_are_some(tmp_path):
     (scene / "primary" / "masks").mkdir()
     assert paths.argv(scene)["segment"][-2:] == ["--masks", str(scene)]
     assert "--masks" not in paths.argv(scene, masks=False)["segment"]  # bijcr task --no-masks
+
+
+def test_push_squeeze_gap_is_measured_from_the_fingertips():
+    """The squeeze is extended by the gap between the fingertips and the object's nearest point along the
+    squeeze line; the gripper origin lies half a finger (and more when tilted) outside the face, and
+    counting that drove the fingertips centimetres into the box."""
+    from types import SimpleNamespace
+
+    from bimanual_app.tasks._grasps import GraspSpec
+    from bimanual_app.tasks._planners import _face_gap
+
+    yy, zz = np.meshgrid(np.linspace(-0.03, 0.03, 13), np.linspace(0.02, 0.08, 13))
+    face = np.stack([np.full(yy.size, 0.2), yy.ravel(), zz.ravel()], axis=1)  # a face at x = 0.2
+    motion = SimpleNamespace(object_points=face)
+    T = np.eye(4)
+    T[:3, 3] = [0.19, 0.0, 0.05]  # the gripper origin 1 cm outside the face
+    squeeze = np.array([1.0, 0.0, 0.0])
+    on_face = GraspSpec("primary", T, 0.002, "push", 0.008, squeeze=squeeze, contact=np.array([0.2, 0.0, 0.05]))
+    short = GraspSpec("primary", T, 0.002, "push", 0.008, squeeze=squeeze, contact=np.array([0.197, 0.0, 0.05]))
+    unknown = GraspSpec("primary", T, 0.002, "push", 0.008, squeeze=squeeze)
+    assert _face_gap(motion, on_face) == pytest.approx(0.0, abs=1e-9)
+    assert _face_gap(motion, short) == pytest.approx(0.003, abs=1e-9)
+    assert _face_gap(motion, unknown) == pytest.approx(0.01, abs=1e-9)  # no contact known: from the origin

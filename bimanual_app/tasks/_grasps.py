@@ -37,6 +37,8 @@ class GraspSpec:
             normal; default the approach z).
         pre_dist: pre-grasp distance back along the approach (m; grasps.json ``pregrasp_distance``, the
             distance the grasping stage checked the pre-grasp at).
+        contact: push only: (3,) where the fingertips meet the face in b1 (grasps.json ``contact_b1``), or
+            None (then the gripper's origin stands for it).
     """
 
     arm: str
@@ -50,6 +52,7 @@ class GraspSpec:
     q_pre: np.ndarray | None = None
     squeeze: np.ndarray | None = None
     pre_dist: float = 0.08
+    contact: np.ndarray | None = None
 
     @property
     def squeeze_dir(self) -> np.ndarray:
@@ -105,7 +108,7 @@ def _spec(d: dict, arm: str, path: str, where: str, pre_dist: float = 0.08) -> G
     q_pre = _arr(d, "q_pregrasp", (6,))
     return GraspSpec(arm, T, width, kind, press, None if cw is None else float(cw), float(d.get("score", 0.0)),
                      _arr(d, "q", (6,)), q_pre if q_pre is not None else _arr(d, "q_pre", (6,)),
-                     _arr(d, "squeeze_b1", (3,)), float(pre_dist))
+                     _arr(d, "squeeze_b1", (3,)), float(pre_dist), _arr(d, "contact_b1", (3,)))
 
 
 def _objects(grasps: dict) -> list[dict]:

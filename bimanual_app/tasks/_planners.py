@@ -29,6 +29,11 @@ __all__ = ["plan_joint_grasp", "plan_handover", "object_lifts", "LIFT", "HOLD_S"
 
 LIFT = 0.15  # m the joint grasp lifts the object (>= 10 cm needed)
 RETREAT_UP = 0.08  # m of the fallback retreats of a push pair (straight up, or further back from the faces)
+# m: a push pair's approach stops this far out from the faces, and the squeeze starts there. The faces'
+# depth comes from the segment's points, which miss the last millimetres of an edge (on the task bench the
+# large box came out 4-10 mm shorter than it is): an approach from above that ended on the estimated face
+# put the fingertips on the real box's top.
+PUSH_STANDOFF = 0.01
 HANDOVER_LIFT = 0.06  # m straight up after the pick, before the free carry
 HANDOVER_LIFTS = (HANDOVER_LIFT, 0.10, 0.14, 0.04)  # tried in order: higher beside a taller neighbour
 HOLD_S = 2.3  # s of the checked hold (2 s needed)
@@ -134,11 +139,16 @@ def object_lifts(motion: TaskMotion, up: np.ndarray, lift: float) -> list[tuple[
 def _face_gap(motion: TaskMotion, g: GraspSpec, lateral: float = 0.03, cap: float = 0.02) -> float:
     """How far (m) the fingertips of a push contact still are from the object along the squeeze direction:
     the nearest object point (its hull, the body the preview simulates) within ``lateral`` m of the squeeze
-    line. The grasping stage puts the fingertips on the face at its points' median depth; the first
-    contact is the outermost point, so the squeeze is extended by the gap (at most ``cap``) to press
-    ``press`` past it on both sides."""
+    line through the fingertips' contact (``g.contact``; the gripper origin when unknown). The grasping
+    stage puts the fingertips on the face at its points' median depth; the first contact is the outermost
+    point, so the squeeze is extended by the gap (at most ``cap``) to press ``press`` past it on both sides.
+
+    Measured from the fingertips, not from the gripper origin: that lies half a finger's thickness (and
+    more on a tilted gripper) outside the face, and counting it drove the fingertips 2 cm into the box on
+    the task bench, where the pressed finger then caught the box's top edge."""
     n = g.squeeze_dir
-    d = motion.object_points - g.T_b1_g[:3, 3]
+    origin = g.T_b1_g[:3, 3] if g.contact is None else np.asarray(g.contact, dtype=np.float64)
+    d = motion.object_points - origin
     along = d @ n
     side = np.linalg.norm(d - np.outer(along, n), axis=1)
     near = along[side < lateral]
@@ -225,10 +235,13 @@ def _joint_grasp(motion, choice, q_start, width_start, lift, up, at) -> TaskPlan
                              for a in arms}, "both grippers to their pre-grasps, opening", "ompl"))
 
     at.append("approach")
-    # 2. straight approach to contact (the object is cut out: the fingers meet it)
+    # 2. straight approach to contact (the object is cut out: the fingers meet it); a push pair stops short
+    # of the faces by PUSH_STANDOFF
     q, _ = plan.end_state()
+    touch = {a: (translate_along(G[a].T_b1_g, G[a].squeeze_dir, -PUSH_STANDOFF) if push else G[a].T_b1_g)
+             for a in arms}
     with motion.context("cut", openings=w_open):
-        tr = motion.cartesian({a: (pre[a], G[a].T_b1_g) for a in arms}, q)
+        tr = motion.cartesian({a: (pre[a], touch[a]) for a in arms}, q)
     plan.add(Phase("approach", {a: _jt(tr[a].times, tr[a].q, w_open[a]) for a in arms},
                    f"straight {G['primary'].pre_dist * 100:.0f} cm approach to the object", "cartesian"))
 
@@ -244,7 +257,7 @@ def _joint_grasp(motion, choice, q_start, width_start, lift, up, at) -> TaskPlan
             S = {a: translate_along(G[a].T_b1_g, G[a].squeeze_dir, G[a].press + f * gap[a]) for a in arms}
             try:
                 with motion.context("cut", openings=w_open):
-                    tr = motion.cartesian({a: (G[a].T_b1_g, S[a]) for a in arms}, q, min_duration=1.0)
+                    tr = motion.cartesian({a: (touch[a], S[a]) for a in arms}, q, min_duration=1.0)
                 break
             except PlanFailure as e:
                 err = err or e
