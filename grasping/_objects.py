@@ -332,3 +332,58 @@ def closed_geometry(geo: ObjectGeometry, support: Support) -> ObjectGeometry:
     N = np.concatenate([geo.normals, np.broadcast_to(-up, Q.shape)])
     return ObjectGeometry(geo.id, geo.n_points + len(Q), P, N, geo.T_b1_box, geo.extent, geo.centre, geo.voxel,
                           np.concatenate([geo.observed, np.zeros(len(Q), dtype=bool)]))
+
+
+def unseen_space(obj_points: np.ndarray, table_points: np.ndarray, other_points: np.ndarray, support: Support,
+                 radius: float = 0.05, cell: float = 0.005, z_step: float = 0.01) -> np.ndarray:
+    """(K, 3) points filling the space around an object that no camera saw into, as columns from the
+    table up to the object's top; to be treated as solid by the grasp checks.
+
+    Objects stand on the table, so wherever a camera saw the table nothing stands; around an object, the
+    ground it could still cover is where neither the table nor another object was seen. A cylinder seen
+    from one side comes out as a half shell 3.5 cm deep, a mug without its far half: fingers closing
+    across the seen part (or a receiver's coming in from the unseen side) meet the rest. The unknown
+    cells (``cell`` m, in the table plane) within ``radius`` m of the object's footprint and joined to it
+    are filled; cells of the footprint itself, of seen table (points within 1.5 cm of the plane; one cell
+    of slack for their spacing) and of other objects' points are not.
+
+    ``obj_points`` (M, 3), ``table_points`` (T, 3), ``other_points`` (O, 3) in b1.
+    """
+    from scipy import ndimage
+
+    P = np.asarray(obj_points, dtype=np.float64).reshape(-1, 3)
+    if not len(P):
+        return np.zeros((0, 3))
+    up = support.up
+    e1, e2 = _perp_basis(up)
+    pad = radius + 3 * cell
+    lo = np.array([(P @ e1).min(), (P @ e2).min()]) - pad
+    hi = np.array([(P @ e1).max(), (P @ e2).max()]) + pad
+    shape = np.ceil((hi - lo) / cell).astype(int) + 1
+
+    def grid(Q: np.ndarray) -> np.ndarray:
+        Q = np.asarray(Q, dtype=np.float64).reshape(-1, 3)
+        ij = np.floor((np.stack([Q @ e1, Q @ e2], axis=1) - lo) / cell).astype(int)
+        ok = np.all((ij >= 0) & (ij < shape), axis=1)
+        g = np.zeros(shape, dtype=bool)
+        g[ij[ok, 0], ij[ok, 1]] = True
+        return g
+
+    seg = ndimage.binary_closing(grid(P), iterations=2) | grid(P)
+    T = np.asarray(table_points, dtype=np.float64).reshape(-1, 3)
+    table = ndimage.binary_dilation(grid(T[np.abs(support.elevation(T)) < 0.015]), iterations=1)
+    other = grid(other_points)
+    near = ndimage.distance_transform_edt(~seg) * cell <= radius
+    unknown = near & ~seg & ~table & ~other
+    lab, n = ndimage.label(unknown)
+    if n == 0:
+        return np.zeros((0, 3))
+    touching = np.unique(lab[ndimage.binary_dilation(seg) & (lab > 0)])
+    cells = np.argwhere(np.isin(lab, touching[touching > 0]))
+    if not len(cells):
+        return np.zeros((0, 3))
+    top = float(np.percentile(support.elevation(P), 99.5))
+    zs = np.arange(0.5 * z_step, max(top, z_step), z_step)
+    uv = (cells + 0.5) * cell + lo
+    base = uv[:, :1] * e1 + uv[:, 1:] * e2 + support.height * up  # (C, 3) on the table plane
+    return (base[:, None, :] + zs[None, :, None] * up).reshape(-1, 3)

@@ -206,6 +206,11 @@ def draw_plan(path: str | Path, plan: GraspPlan, points: np.ndarray, labels: np.
     for ax, (title, a, b) in zip(axes, views):
         order = np.argsort(P[:, 2] if b != 2 else P[:, 1])
         ax.scatter(P[order, a], P[order, b], s=0.6, c=colors[order], linewidths=0)
+        unseen = [op.unseen for op in plan.objects if op.unseen is not None and len(op.unseen)]
+        if unseen:  # the space no camera saw into, solid for the grasps: light crosses under the points
+            U = np.concatenate(unseen)
+            ax.scatter(U[:, a], U[:, b], s=4, marker="x", c="0.55", linewidths=0.4, alpha=0.35, zorder=0,
+                       label="unseen (solid for grasps)" if a == 0 and b == 1 else None)
         for op in plan.objects:
             if op.handover is not None and op.geometry is not None:
                 Q = op.geometry.points @ op.handover.T_move[:3, :3].T + op.handover.T_move[:3, 3]

@@ -32,7 +32,7 @@ from ._gripper import GripperModel
 from ._handover import Handover, HandoverParams, handover_givers, plan_handovers
 from ._inputs import SceneCloud
 from ._joint import JointPair, joint_pairs, spread_order
-from ._objects import ObjectGeometry, Support, check_graspable, closed_geometry, estimate_support, object_geometry
+from ._objects import ObjectGeometry, Support, check_graspable, closed_geometry, estimate_support, object_geometry, unseen_space
 from ._push import PushParams, push_contacts
 
 __all__ = ["PlanParams", "ObjectPlan", "GraspPlan", "plan_grasps", "plan_object"]
@@ -61,8 +61,14 @@ class PlanParams:
         straight up (the task's lifts are 11-15 cm); 0 turns the check off.
     handover: plan a hand-over for objects one arm can lift (needs both arms).
     workspace_radius: background points farther than this from every base (horizontally) are dropped.
-    retry_factor: when no arm reaches any grasp of an object, sample again with this many times the
-        candidates (and twice the reach budget); 1 turns it off.
+    retry_factor: when no arm (or not the primary, which picks) reaches any grasp of an object, sample again
+        with this many times the candidates, hinted by the lacking arms (and twice the reach budget); 1
+        turns it off.
+    unseen_radius: the space within this distance (m) of an object that no camera saw into (neither table
+        nor another object seen there, ``_objects.unseen_space``) is solid for its single-arm grasps and a
+        hand-over's receiver: the object may go on there (seen from one side, a 7.5 cm cylinder is a
+        3.5 cm shell). Not for the push contacts of large objects, whose box their seen top fixes. 0 turns
+        it off.
     """
 
     sampler: SamplerParams = SamplerParams()
@@ -85,6 +91,7 @@ class PlanParams:
     joint_lift_check: float = 0.12
     workspace_radius: float = 1.0
     retry_factor: int = 4
+    unseen_radius: float = 0.05
 
 
 @dataclass
@@ -99,6 +106,7 @@ class ObjectPlan:
     two ends (for pinch pairs). joint: JointPair list (``pair_grasps`` gives the grasp sets they index).
     handover: Handover or None (the best found). handover_alternatives: further hand-overs with another
     giver grasp or transfer pose (``HandoverParams.alternatives``), for the task to fall back on.
+    unseen: (K, 3) points filling the space around the object no camera saw into (``PlanParams.unseen_radius``).
     stats, timings: counts and seconds per stage.
     """
 
@@ -116,6 +124,7 @@ class ObjectPlan:
     handover: Handover | None = None
     handover_alternatives: list = field(default_factory=list)
     free_grasps: GraspSet | None = None
+    unseen: np.ndarray | None = None
     mass_estimate: float = 0.0
     stats: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
@@ -175,10 +184,18 @@ def plan_object(k: int, cloud: SceneCloud, support: Support, gripper: GripperMod
         return plan
     # the rest of the scene near the object: all the swept gripper can touch (fingers, palm, approach)
     others_pts = cloud.points[~mask]
-    others_pts = others_pts[np.linalg.norm(others_pts - geo.centre, axis=1) < 0.5 * float(np.linalg.norm(geo.extent)) + 0.3]
+    near = np.linalg.norm(others_pts - geo.centre, axis=1) < 0.5 * float(np.linalg.norm(geo.extent)) + 0.3
+    others_pts, others_lab = others_pts[near], cloud.labels[~mask][near]
     others = SceneOctree(others_pts, params.octree_resolution)
+    plan.unseen = np.zeros((0, 3))
+    if params.unseen_radius > 0 and not too_wide:
+        plan.unseen = unseen_space(cloud.points[mask], others_pts[others_lab < 0], others_pts[others_lab >= 0],
+                                   support, params.unseen_radius)
+        plan.stats["unseen_points"] = int(len(plan.unseen))
+    blocked = SceneOctree(np.concatenate([others_pts, plan.unseen]), params.octree_resolution) if len(plan.unseen) \
+        else others
     arms = dict(arms or {})
-    _single(plan, support, gripper, collider, others, arms, params, too_wide, long_side)
+    _single(plan, support, gripper, collider, blocked, arms, params, too_wide, long_side)
     if "primary" in arms and "secondary" in arms:
         robot = getattr(arms["primary"].reach, "robot", None)
         check = TwoArmCheck(robot, gripper, arms["secondary"].T_b1_b) if robot is not None else None
@@ -216,12 +233,22 @@ def _workspace(cloud: SceneCloud, arms: dict[str, Arm] | None, radius: float) ->
                       cloud.table_plane, cloud.source)
 
 
+def _balanced_hints(per_arm: list[np.ndarray]) -> np.ndarray | None:
+    """One (K, 3) set of approach hints in which each arm's (a list of (K_i, 3)) is equally represented
+    (each repeated up to the largest count): the sampler draws hints at random, and an arm at the far end
+    of its reach has a few where the nearer arm has hundreds. None when there are none."""
+    per_arm = [h for h in per_arm if len(h)]
+    if not per_arm:
+        return None
+    n = max(len(h) for h in per_arm)
+    return np.concatenate([h[np.arange(n) % len(h)] for h in per_arm])
+
+
 def _single(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: GripperCollider,
             others: SceneOctree, arms: dict[str, Arm], params: PlanParams, too_wide: bool, long_side: float) -> None:
     """Antipodal grasps of the object and each arm's reachable ones (a denser second round when none)."""
     geo, sp = plan.geometry, params.sampler
-    hints = [a.reach.approach_hints(geo.centre) for a in arms.values() if hasattr(a.reach, "approach_hints")]
-    hints = np.concatenate(hints) if hints else None
+    hints = _balanced_hints([a.reach.approach_hints(geo.centre) for a in arms.values() if hasattr(a.reach, "approach_hints")])
     t1 = time.perf_counter()
     if too_wide:
         plan.grasps = GraspSet.empty(plan.id)
@@ -235,14 +262,21 @@ def _single(plan: ObjectPlan, support: Support, gripper: GripperModel, collider:
     for name, arm in arms.items():
         plan.reach[name] = reachable_grasps(plan.grasps, arm, params.reach_tries, params.reach_want)
     plan.timings["reach"] = time.perf_counter() - t1
-    if (arms and not too_wide and params.retry_factor > 1 and not any(len(a) for a in plan.reach.values())
+    lacking = [name for name, ag in plan.reach.items() if not len(ag)]
+    if (arms and not too_wide and params.retry_factor > 1 and (len(lacking) == len(arms) or "primary" in lacking)
             and plan.stats["sampler"]["pairs"] > 0):
-        # cluttered or awkward: no grasp an arm reaches among the first candidates. Sample again, denser
-        # (collision-free grasps are rare there), and give the reach filters a larger budget.
+        # cluttered or awkward: no grasp an arm reaches among the first candidates (or the primary, which
+        # picks, reaches none: an object at the far end of its reach, which only grasps tilted away from its
+        # base reach, while the first round's hints were mostly the nearer arm's). Sample again, denser
+        # (collision-free grasps are rare there), with the lacking arms' approach hints, and give the reach
+        # filters a larger budget.
         t1 = time.perf_counter()
+        retry_hints = _balanced_hints([arms[n].reach.approach_hints(geo.centre) for n in lacking
+                                       if hasattr(arms[n].reach, "approach_hints")])
+        retry_hints = hints if retry_hints is None else retry_hints
         dense = replace(sp, n_candidates=sp.n_candidates * params.retry_factor, max_keep=2 * sp.max_keep, seed=sp.seed + 1)
         more, plan.stats["sampler_retry"] = sample_grasps(geo, support, gripper, collider, others, dense,
-                                                          approach_hints=hints)
+                                                          approach_hints=retry_hints)
         both = GraspSet.concat([plan.grasps, more]) if len(plan.grasps) else more
         plan.grasps = both.take(np.argsort(-both.score, kind="stable"))
         for name, arm in arms.items():
@@ -345,7 +379,10 @@ def _handover(plan: ObjectPlan, support: Support, gripper: GripperModel, collide
     # stroke): in the air nothing but the giver is near, and the spare opening absorbs the calibration error
     free_params = replace(params.sampler, full_circle=True, max_keep=params.sampler.n_candidates,
                           clearance=max(params.sampler.clearance, params.handover_params.receiver_clearance))
-    plan.free_grasps, _ = sample_grasps(closed, support, gripper, collider, SceneOctree(np.zeros((0, 3))), free_params)
+    # the space around the object no camera saw into stays solid for the receiver (it moves with the object)
+    unseen = plan.unseen if plan.unseen is not None else np.zeros((0, 3))
+    plan.free_grasps, _ = sample_grasps(closed, support, gripper, collider, SceneOctree(unseen, params.octree_resolution),
+                                        free_params)
     # the giver holds the object where it leaves the receiver room, not where a single-arm pick is best
     givers, clear = handover_givers(plan.grasps, plan.free_grasps, plan.reach["primary"], arms["primary"], collider,
                                     params.handover_params)

@@ -143,10 +143,38 @@ class ArmReach:
         tree, Z = self.solver._grasp_pos_map
         p_b = inv_T(self.T_b1_b) @ np.append(np.asarray(p_b1, dtype=np.float64), 1.0)
         idx = tree.query_ball_point(p_b[:3], radius)
-        if not idx:
-            return np.zeros((0, 3))
-        idx = np.asarray(idx)[:max_hints]
-        return Z[idx] @ self.T_b1_b[:3, :3].T
+        Z_b = Z[np.asarray(idx, dtype=int)[:max_hints]]
+        if len(Z_b) < self.MIN_MAP_HINTS:
+            # the random map is sparse near the table at the far end of the reach (3 poses within 5 cm of a
+            # point 48 cm out, where only grasps tilted away from the base reach): ask the IK directly
+            Z_b = np.concatenate([Z_b, self._probed_approaches(p_b[:3])])
+        return Z_b @ self.T_b1_b[:3, :3].T
+
+    MIN_MAP_HINTS = 20
+    _PROBE_TILTS = np.deg2rad([0.0, 20.0, 40.0, 60.0, 80.0])
+    _PROBE_AZIMUTHS = 12
+
+    def _probed_approaches(self, p_b: np.ndarray) -> np.ndarray:
+        """(K, 3) approach directions (in the arm's base frame) with which the IK reaches the point ``p_b``
+        (3,): tilts of 0-80 degrees from straight down, at 12 azimuths, two turns about the approach each."""
+        out = []
+        for tilt in self._PROBE_TILTS:
+            for k in range(self._PROBE_AZIMUTHS if tilt > 0 else 1):
+                az = 2 * np.pi * k / self._PROBE_AZIMUTHS
+                z = np.array([np.sin(tilt) * np.cos(az), np.sin(tilt) * np.sin(az), -np.cos(tilt)])
+                for roll in (0.0, np.pi / 2):
+                    a = np.array([np.cos(az + roll), np.sin(az + roll), 0.0])
+                    y = a - (a @ z) * z
+                    if np.linalg.norm(y) < 1e-6:
+                        y = np.array([-np.sin(az + roll), np.cos(az + roll), 0.0])
+                    y /= np.linalg.norm(y)
+                    T = np.eye(4)
+                    T[:3, :3] = np.stack([np.cross(y, z), y, z], axis=1)
+                    T[:3, 3] = p_b
+                    if self.solver.solve(T, max_seeds=4).success:
+                        out.append(z)
+                        break
+        return np.array(out).reshape(-1, 3)
 
     _ROT_W = 0.1  # metres per unit of rotation-matrix difference
 
