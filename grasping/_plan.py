@@ -189,8 +189,10 @@ def plan_object(k: int, cloud: SceneCloud, support: Support, gripper: GripperMod
     others = SceneOctree(others_pts, params.octree_resolution)
     plan.unseen = np.zeros((0, 3))
     if params.unseen_radius > 0 and not too_wide:
-        plan.unseen = unseen_space(cloud.points[mask], others_pts[others_lab < 0], others_pts[others_lab >= 0],
-                                   support, params.unseen_radius)
+        obs = geo.observed if geo.observed is not None else np.ones(len(geo.points), bool)
+        # only in the directions where the object's own side was not seen (its seen points and normals)
+        plan.unseen = unseen_space(geo.points[obs], others_pts[others_lab < 0], others_pts[others_lab >= 0],
+                                   support, params.unseen_radius, normals=geo.normals[obs])
         plan.stats["unseen_points"] = int(len(plan.unseen))
     blocked = SceneOctree(np.concatenate([others_pts, plan.unseen]), params.octree_resolution) if len(plan.unseen) \
         else others

@@ -57,3 +57,30 @@ def test_grasps_of_a_half_seen_cylinder_do_not_close_across_the_seen_shell():
     n_solid, n_all = across_depth(PlanParams(handover=False))
     assert n_ignored > 0
     assert n_solid == 0 and n_all > 0
+
+
+def _cylinder_normals(P):
+    n = np.zeros_like(P)
+    d = P[:, :2] - np.asarray(CENTRE)
+    r = np.linalg.norm(d, axis=1)
+    side = r > DIAMETER / 2 - 0.002
+    n[side, :2] = d[side] / r[side, None]
+    n[~side, 2] = 1.0
+    return n
+
+
+def test_only_the_directions_whose_side_was_not_seen_are_filled():
+    """With the object's normals, the unseen table is filled only where its side was not seen: a cylinder
+    seen all round whose shadow on the table no camera saw gets nothing (the shadow is not more of it);
+    the half-seen one still gets its far half."""
+    P, L = make_cloud([Obj("cylinder", CENTRE, (DIAMETER, DIAMETER, 0.08), 0.0)], table_size=(0.5, 0.5))
+    shadow = (L < 0) & (P[:, 1] > CENTRE[1]) & (P[:, 1] < CENTRE[1] + 0.08) & (np.abs(P[:, 0] - CENTRE[0]) < 0.045)
+    P, L = P[~shadow], L[~shadow]
+    sup = estimate_support(P, L)
+    obj = P[L == 0]
+    assert len(unseen_space(obj, P[L < 0], P[L > 0], sup)) > 0  # without normals: the shadow is filled
+    assert len(unseen_space(obj, P[L < 0], P[L > 0], sup, normals=_cylinder_normals(obj))) == 0
+    P2, L2 = _half_seen_cylinder()
+    obj2 = P2[L2 == 0]
+    U = unseen_space(obj2, P2[L2 < 0], P2[L2 > 0], estimate_support(P2, L2), normals=_cylinder_normals(obj2))
+    assert len(U) and np.all(U[:, 1] > CENTRE[1] - 0.005)

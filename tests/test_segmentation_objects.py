@@ -137,3 +137,24 @@ def test_parameters_can_be_changed_and_are_checked():
     assert p.voxel == 0.004
     with pytest.raises(TypeError):
         SegmentParams().with_(no_such_thing=1)
+
+
+def test_a_cartons_footprint_is_not_stretched_by_a_neighbours_stray_voxels():
+    """A few voxels of a touching cylinder's side left in the carton's region by the contraction must not
+    make the cylinder look like a part inside the carton's footprint (it was merged into it): a large
+    region's footprint for that test is its core, without slivers under 2 cm wide."""
+    from segmentation._parts import HULL_MARGIN, _inside_hull, core_hull
+
+    rng = np.random.default_rng(0)
+    carton = np.stack([rng.uniform(0.0, 0.30, 6000), rng.uniform(0.0, 0.20, 6000)], axis=1)
+    # a 5.5 cm cylinder against the carton's +x side, 12 of its side voxels in the carton's region
+    a = rng.uniform(0, 2 * np.pi, 800)
+    r = 0.0275 * np.sqrt(rng.uniform(0, 1, 800))
+    cyl = np.stack([0.3275 + r * np.cos(a), 0.10 + r * np.sin(a)], axis=1)
+    stray = np.stack([np.full(12, 0.352), np.linspace(0.09, 0.11, 12)], axis=1)
+    region = np.vstack([carton, stray])
+    core = core_hull(region)
+    plain = core_hull(region, radius=0.0)
+    assert np.mean(_inside_hull(plain, cyl, HULL_MARGIN)) >= 0.9  # what merged it
+    assert np.mean(_inside_hull(core, cyl, HULL_MARGIN)) < 0.5
+    assert np.mean(_inside_hull(core, carton, HULL_MARGIN)) > 0.99  # the carton itself keeps its footprint

@@ -452,9 +452,22 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
     with motion.context("attached", openings={"primary": cw_g, "secondary": wr}, attach=attach):
         sols = _approachable(motion, "secondary", _goal_ik(motion, "secondary", pre_rec, [rec.q_pre, q_start["secondary"],
                                                                                           rec.q]), pre_rec, rec.T_b1_g)
-        tr = motion.plan_free(["secondary"], q, [{"secondary": s} for s in sols[:4]])["secondary"]
-    plan.add(Phase("receive-reach", {"secondary": _jt(tr.times, tr.q, _ramp(tr.times, width_start["secondary"], wr))},
-                   "secondary to its pre-grasp at the transfer pose", "ompl"))
+        # the goals open (checked at the receiver's opening); the way there keeps the gripper as it was: the
+        # transfer pose may bring the object near the waiting secondary, whose fingers, opened where it
+        # stands, would touch it before it moves
+        sols = np.stack([s_ for s_ in sols if not motion.valid({**q, "secondary": s_})] or [sols[0]])
+    w0 = width_start["secondary"]
+    try:
+        with motion.context("attached", openings={"primary": cw_g, "secondary": w0}, attach=attach):
+            tr = motion.plan_free(["secondary"], q, [{"secondary": s} for s in sols[:4]])["secondary"]
+        times = np.concatenate([tr.times, tr.times[-1] + np.array([0.5 * CLOSE_S, CLOSE_S])])
+        jt = _jt(times, np.concatenate([tr.q, [tr.q[-1], tr.q[-1]]]), np.r_[np.full(len(tr.times), w0), 0.5 * (w0 + wr), wr])
+    except PlanFailure:  # where the goal needs the fingers open already (they straddle the object's edge)
+        with motion.context("attached", openings={"primary": cw_g, "secondary": wr}, attach=attach):
+            tr = motion.plan_free(["secondary"], q, [{"secondary": s} for s in sols[:4]])["secondary"]
+        jt = _jt(tr.times, tr.q, _ramp(tr.times, w0, wr))
+    plan.add(Phase("receive-reach", {"secondary": jt}, "secondary to its pre-grasp at the transfer pose, opening",
+                   "ompl"))
     at.append("receive-approach")
     q, _ = plan.end_state()
     with motion.context("cut", openings={"primary": cw_g, "secondary": wr}):
