@@ -42,8 +42,8 @@ def test_unseen_space_fills_the_unseen_half_and_nothing_around_a_seen_object():
 
 def test_grasps_of_a_half_seen_cylinder_do_not_close_across_the_seen_shell():
     """Seen from one side the cylinder is a 2.5 cm deep shell: a grasp closing across that depth puts a
-    finger into its unseen half. Such grasps exist when the unseen space is ignored, and none is kept
-    when it is solid; grasps closing across the seen 5 cm width remain."""
+    finger into its unseen half. Such grasps exist when the unseen space is ignored (the default), and
+    none is kept when it is solid (``unseen_radius``); grasps closing across the seen 5 cm width remain."""
     P, L = _half_seen_cylinder()
 
     def across_depth(params):
@@ -53,8 +53,8 @@ def test_grasps_of_a_half_seen_cylinder_do_not_close_across_the_seen_shell():
         closing = gs.T_b1_g[:, :3, 1]
         return int(np.sum(np.abs(closing[:, 1]) > 0.9)), len(gs)
 
-    n_ignored, _ = across_depth(PlanParams(handover=False, unseen_radius=0.0))
-    n_solid, n_all = across_depth(PlanParams(handover=False))
+    n_ignored, _ = across_depth(PlanParams(handover=False))
+    n_solid, n_all = across_depth(PlanParams(handover=False, unseen_radius=0.05))
     assert n_ignored > 0
     assert n_solid == 0 and n_all > 0
 
