@@ -188,3 +188,32 @@ def test_scene_exempt_shapes_skip_only_the_scene_check():
     both = CollisionWorld(robot, None, np.vstack([blob, elbow + rng.uniform(-0.005, 0.005, (200, 3))]),
                           scene_exempt=links)
     assert not both.valid(q)
+
+
+def test_obb_keeps_an_edge_along_the_given_axis():
+    """An object's hull vertices (a footprint with unevenly cut corners, extruded to the table) have
+    principal axes that tilt the box: 31 % more volume here, up to 40 % on the task bench. With the
+    table normal as axis, the box is the object's own: an edge along the axis, the footprint's least
+    rectangle."""
+    from bimanual_app.collision._shapes import obb_of_points
+
+    foot = np.array([[0.030, -0.020], [0.030, 0.022], [0.018, 0.029], [-0.024, 0.029], [-0.030, 0.015],
+                     [-0.030, -0.029], [0.012, -0.029]])
+    P = np.concatenate([np.c_[foot, np.zeros(len(foot))], np.c_[foot, np.full(len(foot), 0.079)]])
+    c, s = np.cos(0.5), np.sin(0.5)
+    R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    P_b1 = P @ R.T + [0.4, 0.1, 0.0]
+    _, half_pca = obb_of_points(P_b1)
+    T_box, half = obb_of_points(P_b1, axis=np.array([0.0, 0.0, 1.0]))
+    assert np.allclose(2 * half, [0.060, 0.058, 0.079], atol=1e-6)
+    assert np.prod(half_pca) > 1.3 * np.prod(half)
+    assert np.allclose(T_box[:3, 2], [0, 0, 1], atol=1e-9) and np.allclose(T_box[:3, 0], R[:, 0], atol=1e-6)
+    local = (P_b1 - T_box[:3, 3]) @ T_box[:3, :3]
+    assert np.all(np.abs(local) <= half + 1e-9)  # holds every point
+    # the axis is only a candidate: a flat box lying tilted keeps its own (principal) axes
+    a = np.deg2rad(40)
+    Rt = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    g = np.stack(np.meshgrid(*[np.linspace(-0.5, 0.5, 9)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    Q = (g * [0.12, 0.05, 0.02]) @ Rt.T + [0.4, 0.1, 0.1]
+    _, h2 = obb_of_points(Q, axis=np.array([0.0, 0.0, 1.0]))
+    assert np.allclose(np.sort(2 * h2), [0.02, 0.05, 0.12], atol=1e-6)

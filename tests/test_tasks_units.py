@@ -152,3 +152,29 @@ def test_push_squeeze_gap_is_measured_from_the_fingertips():
     assert _face_gap(motion, on_face) == pytest.approx(0.0, abs=1e-9)
     assert _face_gap(motion, short) == pytest.approx(0.003, abs=1e-9)
     assert _face_gap(motion, unknown) == pytest.approx(0.01, abs=1e-9)  # no contact known: from the origin
+
+
+def test_lift_directions_lead_away_from_a_taller_neighbour():
+    """Beside a taller neighbour, a lift straight up slides along it and the carry would start too close;
+    the lifts also go up and away from it (the neighbour's side, not the table, sets the direction)."""
+    from bimanual_app.robots import load_robot
+    from bimanual_app.tasks._motion import TaskMotion
+    from bimanual_app.tasks._planners import _lift_directions
+    from tests._task_fixtures import FIX_T_B1_B2, box_surface_points, table_points
+
+    obj = box_surface_points([0.40, 0.10, 0.04], [0.05, 0.05, 0.08], 1500, visible_only=False)
+    wall = box_surface_points([0.40 - 0.025 - 0.012 - 0.03, 0.10 - 0.02, 0.06], [0.06, 0.08, 0.12], 1500, seed=2)
+    motion = TaskMotion(load_robot("piper"), FIX_T_B1_B2, np.vstack([table_points(), obj, wall]), obj, obj)
+    T = np.eye(4)
+    T[:3, :3] = np.diag([1.0, -1.0, -1.0])  # from above
+    T[:3, 3] = [0.40, 0.10, 0.06]
+    up = np.array([0.0, 0.0, 1.0])
+    dirs = dict(_lift_directions(motion, T, obj, up))
+    assert np.allclose(dirs["straight up"], up)
+    away = dirs["up and away from its neighbour"]
+    assert away @ up == pytest.approx(np.sqrt(0.5), abs=1e-6)  # 45 degrees
+    assert away[0] > 0.6 and away[1] > 0.0  # from the wall's side (-x, -y) outwards
+    assert "up, a little away from its neighbour" in dirs
+    assert "back out along the approach" in dirs  # from above: backing out rises
+    alone = TaskMotion(load_robot("piper"), FIX_T_B1_B2, np.vstack([table_points(), obj]), obj, obj)
+    assert not any("neighbour" in h for h, _ in _lift_directions(alone, T, obj, up))  # the table is no neighbour

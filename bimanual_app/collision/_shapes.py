@@ -81,20 +81,52 @@ def _capsule_of_points(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     return c + s.min() * u, c + s.max() * u, r
 
 
-def obb_of_points(P: np.ndarray, padding: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Oriented bounding box of points (N,3): (T (4,4) box-centre pose in the points' frame, half sizes (3,))."""
+def obb_of_points(P: np.ndarray, padding: float = 0.0, axis: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Oriented bounding box of points (N,3): (T (4,4) box-centre pose in the points' frame, half sizes (3,)).
+
+    The box's axes are the points' principal axes; with ``axis`` (3,) (e.g. the table normal, for an
+    object extruded down to the table) also the box with one edge along it and the least-area rectangle
+    about it, and whichever of the two has the smaller volume is returned. Principal axes alone bloat a
+    box-like object whose extents are close (a near-cube's covariance has no preferred axes): up to 40 %
+    more volume on the task bench's objects.
+    """
     P = np.asarray(P, dtype=np.float64)
     c = P.mean(axis=0)
     _, _, Vt = np.linalg.svd(P - c, full_matrices=False)
-    R = Vt.T
-    if np.linalg.det(R) < 0:
-        R[:, 2] *= -1
-    local = (P - c) @ R
-    lo, hi = local.min(axis=0), local.max(axis=0)
+    frames = [Vt.T]
+    if axis is not None:
+        frames.append(_frame_about_axis(P, np.asarray(axis, dtype=np.float64)))
+    best = None
+    for R in frames:
+        R = R.copy()
+        if np.linalg.det(R) < 0:
+            R[:, 2] *= -1
+        local = (P - c) @ R
+        lo, hi = local.min(axis=0), local.max(axis=0)
+        vol = float(np.prod(hi - lo))
+        if best is None or vol < best[0] - 1e-12:
+            best = (vol, R, lo, hi)
+    _, R, lo, hi = best
     T = np.eye(4)
     T[:3, :3] = R
     T[:3, 3] = c + R @ ((lo + hi) / 2)
     return T, (hi - lo) / 2 + padding
+
+
+def _frame_about_axis(P: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """(3,3) rotation whose z is ``axis`` and whose x, y are the sides of the least-area rectangle holding
+    the points (N,3) projected along it (OpenCV's rotating calipers)."""
+    import cv2
+
+    z = axis / np.linalg.norm(axis)
+    x0 = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
+    x0 /= np.linalg.norm(x0)
+    y0 = np.cross(z, x0)
+    uv = np.stack([P @ x0, P @ y0], axis=1)
+    (_, _), (_, _), ang = cv2.minAreaRect((uv - uv.mean(axis=0)).astype(np.float32))
+    a = np.deg2rad(ang)
+    x = np.cos(a) * x0 + np.sin(a) * y0
+    return np.stack([x, np.cross(z, x), z], axis=1)
 
 
 @dataclass

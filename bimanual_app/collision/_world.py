@@ -225,12 +225,14 @@ class CollisionWorld:
         self.scene = self.scene.without(mask)
 
     def attach(self, arm: int | str, points_b1: np.ndarray, q: np.ndarray, name: str = "object",
-               padding: float = 0.005, cut_radius: float | None = None) -> None:
+               padding: float = 0.005, cut_radius: float | None = None, axis_b1: np.ndarray | None = None) -> None:
         """Attach an object, given by its points (M,3) in b1, to ``arm``'s tool link at configuration ``q``.
 
         The object becomes an oriented box (padded) that moves with the tool; it is checked against the
         scene and the other arm, not against its own gripper and wrist. With ``cut_radius`` the scene
-        points within that distance of the object's points are removed from the map first.
+        points within that distance of the object's points are removed from the map first. ``axis_b1``
+        (3,): a direction the box may keep an edge along (the table normal, for an object standing on it;
+        see :func:`obb_of_points`).
         """
         import coal
 
@@ -245,7 +247,8 @@ class CollisionWorld:
         JP = a.robot.joint_placements(a.robot.full_q(np.asarray(q, float)[None], a.opening))[0]
         T_b1_j = a.T_b1_b @ JP[ee_joint]
         P_j = (np.linalg.inv(T_b1_j) @ np.c_[P, np.ones(len(P))].T).T[:, :3]
-        T_j_box, half = obb_of_points(P_j, padding)
+        axis_j = None if axis_b1 is None else T_b1_j[:3, :3].T @ np.asarray(axis_b1, dtype=np.float64)
+        T_j_box, half = obb_of_points(P_j, padding, axis=axis_j)
         geom = coal.Box(*(2 * half))
         k_long = int(np.argmax(half))
         ea = np.zeros(3)

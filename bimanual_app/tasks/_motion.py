@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bimanual_app.transforms import check_T, inv_T, make_T
+from bimanual_app.transforms import check_T, check_shape, inv_T, make_T
 
 __all__ = ["PlanFailure", "TaskMotion", "translate_along", "line_poses", "robot_points_mask", "WAYPOINT_STEP", "BASE_RADIUS"]
 
@@ -117,6 +117,8 @@ class TaskMotion:
         segment_points: (K,3) the object's points in the cloud (cut out of the map with ``cut_radius``).
         body: the object's estimated :class:`bimanual_app.simulation.BodyShape`; map points inside it
             (grown by ``cut_radius``) are cut out too.
+        up: (3,) the table normal in b1: the carried object's box keeps an edge along it (its points are
+            extruded down to the table); None: principal axes only.
         seed: OMPL's random seed (one per process: OMPL takes the first), so that a task run again on the
             same inputs plans the same motions, and its preview approval stays valid; None: time-seeded.
         plan_time: OMPL time limit per query (s).
@@ -128,7 +130,7 @@ class TaskMotion:
     def __init__(self, robot, T_b1_b2: np.ndarray, points: np.ndarray, object_points: np.ndarray,
                  segment_points: np.ndarray | None = None, plan_time: float = 5.0, speed: float = 0.5, margin: float = 0.01,
                  cut_radius: float = 0.015, contact_margin: float = CONTACT_MARGIN, resolution: float = MAP_RESOLUTION,
-                 body=None, seed: int | None = 0):
+                 body=None, seed: int | None = 0, up: np.ndarray | None = None):
         from bimanual_app.planning import BimanualSetup
 
         self.robot = robot
@@ -139,6 +141,7 @@ class TaskMotion:
         self.contact_margin = float(contact_margin)
         self.seed = seed
         self.speed = float(speed)
+        self.up = None if up is None else check_shape("up", np.asarray(up, dtype=np.float64), (3,))
         self.object_points = np.asarray(object_points, dtype=np.float64)
         self.full_map = self.world.scene
         cut = self.object_points if segment_points is None else np.vstack([segment_points, self.object_points])
@@ -172,7 +175,7 @@ class TaskMotion:
             w.set_opening(arm, o)
         if object_mode == "attached":
             arm, q, pts = attach
-            w.attach(arm, pts, q, name="object", padding=0.002)
+            w.attach(arm, pts, q, name="object", padding=0.002, axis_b1=self.up)
         try:
             yield w
         finally:

@@ -171,6 +171,36 @@ def _retreat_directions(T_b1_g: np.ndarray, up: np.ndarray) -> list[tuple[str, n
     return out
 
 
+def _lift_directions(motion: TaskMotion, T_b1_g: np.ndarray, object_points: np.ndarray, up: np.ndarray,
+                     near: float = 0.03) -> list[tuple[str, np.ndarray]]:
+    """A picked object's lift directions (unit (3,) in b1), in order of preference.
+
+    Straight up; up and towards the primary's base (near the edge of the reach); up and away from the
+    neighbours it stands beside (map points within ``near`` m of its points, above its bottom): a lift
+    straight up beside a taller neighbour slides along it, and where the arm cannot go higher, the carry
+    would start too close to it; back out along the approach, where that rises.
+    """
+    dirs = [("straight up", up)]
+    to_base = -T_b1_g[:3, 3] + (T_b1_g[:3, 3] @ up) * up
+    if np.linalg.norm(to_base) > 1e-6:
+        to_base /= np.linalg.norm(to_base)
+        dirs.append(("up and towards the base", (up + to_base) / np.linalg.norm(up + to_base)))
+    d, i = motion._cut_tree.query(object_points, k=1, distance_upper_bound=near)
+    C = motion._cut_tree.data[np.unique(i[np.isfinite(d)])]
+    C = C[C @ up > (object_points @ up).min() + 0.01]  # the neighbours' sides, not the table
+    if len(C):
+        away = object_points.mean(0) - C.mean(0)
+        away -= (away @ up) * up
+        if np.linalg.norm(away) > 1e-6:
+            away /= np.linalg.norm(away)
+            for how, k in (("up and away from its neighbour", 1.0), ("up, a little away from its neighbour", 0.5)):
+                dirs.append((how, (up + k * away) / np.linalg.norm(up + k * away)))
+    back = -T_b1_g[:3, 2]
+    if back @ up > 0.3:
+        dirs.append(("back out along the approach", back))
+    return dirs
+
+
 def _approachable(motion: TaskMotion, arm: str, sols: np.ndarray, T_pre: np.ndarray, T: np.ndarray) -> np.ndarray:
     """The pre-grasp IK solutions (order kept) from which the straight approach to ``T`` stays on one IK
     branch (so the OMPL goal and the approach that follows it agree); raises the first failure if none."""
@@ -399,15 +429,10 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
     # 4-5. lift, then carry to the transfer pose (object attached to the primary)
     attach = ("primary", q_grasp, object_points)
     # off the table: the object rests on it at the start, so it is checked by itself (its points along the
-    # motion against the map) rather than attached (it would touch the table at once). Straight up; near
-    # the edge of the reach, up and back towards the primary's base, or back out along the approach, and
-    # less far (the carry that follows is planned with the object attached, clear of the table).
-    to_base = -pick.T_b1_g[:3, 3] + (pick.T_b1_g[:3, 3] @ up) * up
-    to_base /= max(np.linalg.norm(to_base), 1e-9)
-    back = -pick.T_b1_g[:3, 2]
-    dirs = [("straight up", up), ("up and towards the base", (up + to_base) / np.linalg.norm(up + to_base))]
-    if back @ up > 0.3:
-        dirs.append(("back out along the approach", back))
+    # motion against the map) rather than attached (it would touch the table at once); in the directions
+    # of _lift_directions, higher, or less far (the carry that follows is planned with the object
+    # attached, clear of the table).
+    dirs = _lift_directions(motion, pick.T_b1_g, object_points, up)
     tr, err = None, None
     for dist in HANDOVER_LIFTS:
         for how, d in dirs:
@@ -434,7 +459,8 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
         if tr is not None:
             break
     if tr is None:
-        raise err
+        raise PlanFailure(err.stage, f"{err.message} (and {len(HANDOVER_LIFTS) * len(dirs) - 1} other lifts: "
+                                     f"{', '.join(h for h, _ in dirs[1:])}; up to {max(HANDOVER_LIFTS) * 100:.0f} cm)")
     plan.add(Phase("lift", {"primary": _jt(tr.times, tr.q, CLOSED)}, f"lifted {dist * 100:.0f} cm ({how})",
                    "cartesian"))
     at.append("transfer")

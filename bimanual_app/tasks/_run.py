@@ -246,7 +246,7 @@ def _run_loaded(opts, scene, inputs, robot, staging: OutputDir, timings: dict) -
             pts_o = sh.surface_points_b1()
             motion_o = TaskMotion(robot, inputs.T_b1_b2, inputs.points[~robot_pts], pts_o,
                                   inputs.points[inputs.labels == o], plan_time=opts.plan_time, speed=opts.speed,
-                                  body=sh)
+                                  body=sh, up=table.normal)
             if motion is None:  # the first map built: the start must be free in it
                 problems = motion_o.valid(q_start)
                 if problems:
