@@ -51,7 +51,8 @@ class PushParams:
     swivels: approach turns about the vertical away from the face normal (radians): an arm beside the face
         rather than in front of it reaches it turned; the squeeze stays along the face normal.
     press: how far past the face the fingertips are driven to squeeze (the grasp's ``depth`` is -press).
-    standoff: the gap kept for the collision check of the approach (the fingertips stop at the face).
+    standoff: the gap kept for the collision check of the approach: the task's approach stops this far
+        out from the face (``bimanual_app.tasks._planners.PUSH_STANDOFF``), and the squeeze starts there.
     pad_depth: points within this distance of the face plane count as under a pad.
     min_pad_points: face points needed around each fingertip (within ``fit_radius``).
     edge_margin: the pads stay this far inside the face's edges.
@@ -78,7 +79,7 @@ class PushParams:
     leans: tuple[float, ...] = (np.deg2rad(25.0), np.deg2rad(-25.0))
     lean_min_tilt: float = np.deg2rad(50.0)
     press: float = 0.008
-    standoff: float = 0.006
+    standoff: float = 0.010
     pad_depth: float = 0.008
     min_pad_points: int = 4
     edge_margin: float = 0.005

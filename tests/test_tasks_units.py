@@ -178,3 +178,13 @@ def test_lift_directions_lead_away_from_a_taller_neighbour():
     assert "back out along the approach" in dirs  # from above: backing out rises
     alone = TaskMotion(load_robot("piper"), FIX_T_B1_B2, np.vstack([table_points(), obj]), obj, obj)
     assert not any("neighbour" in h for h, _ in _lift_directions(alone, T, obj, up))  # the table is no neighbour
+
+
+def test_grasping_checks_push_approaches_where_the_task_stops_them():
+    """The grasping stage checks a push contact's way in held off the face by its standoff; the task's
+    approach stops PUSH_STANDOFF out and squeezes from there. Checked nearer the face, a way in 1 cm out
+    passed a neighbour's side that the task's finger then touched (task bench seed 6)."""
+    from bimanual_app.tasks._planners import PUSH_STANDOFF
+    from grasping import PushParams
+
+    assert PushParams().standoff == pytest.approx(PUSH_STANDOFF)
