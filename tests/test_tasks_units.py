@@ -188,3 +188,61 @@ def test_grasping_checks_push_approaches_where_the_task_stops_them():
     from grasping import PushParams
 
     assert PushParams().standoff == pytest.approx(PUSH_STANDOFF)
+
+
+def test_handover_moves_a_secondary_in_the_way_aside_during_the_transfer():
+    """A secondary waiting where the object is carried to: the transfer pose would put the object against
+    it, so it goes to its pre-grasp in the same (12-DoF) motion; the plan then validates as a whole, its
+    held fingers taken where they rest on the object (``Phase.resting``)."""
+    from bimanual_app.planning import default_ready
+    from bimanual_app.robots import load_robot
+    from bimanual_app.tasks._motion import TaskMotion
+    from bimanual_app.tasks._planners import plan_handover
+    from tests._task_fixtures import FIX_T_B1_B2, SMALL_BOX, _cloud, box_surface_points, fixture_grasps
+
+    robot = load_robot("piper")
+    pts, labels = _cloud()
+    obj = box_surface_points(SMALL_BOX["centre"], SMALL_BOX["size"], 1500, visible_only=False)
+    up = np.array([0.0, 0.0, 1.0])
+    motion = TaskMotion(robot, FIX_T_B1_B2, pts, obj, pts[labels == 0], up=up)
+    choice = handover_candidates(fixture_grasps(robot), "grasps.json")[0]
+    # the secondary stands with its gripper where the receiver grasp will be, closed
+    q_start = {"primary": default_ready(robot), "secondary": choice.receiver.q}
+    assert not motion.valid(q_start)
+    plan = plan_handover(motion, choice, q_start, {"primary": 0.0, "secondary": 0.0}, obj, up=up)
+    transfer = next(p for p in plan.phases if p.name == "transfer")
+    assert set(transfer.trajectories) == {"primary", "secondary"} and "out of its way" in transfer.note
+    assert transfer.trajectories["secondary"].gripper[-1] == pytest.approx(choice.receiver.width)
+    assert motion.tcp_pose("secondary", transfer.trajectories["secondary"].q[-1])[:3, 3] @ choice.receiver.T_b1_g[:3, 2] \
+        < choice.receiver.T_b1_g[:3, 3] @ choice.receiver.T_b1_g[:3, 2] - 0.02  # backed off along its approach
+    spans = plan.opening_spans()
+    names = [p.name for p in plan.phases]
+    release = spans[names.index("release")][2]
+    assert release["secondary"] == pytest.approx(choice.receiver.contact_width)  # resting on the object, not 0
+    motion.validate_timeline(plan.timeline(), spans)  # raises if any sample collides or breaks a limit
+
+
+def test_points_between_the_open_fingers_of_a_pick_are_cut_as_the_object():
+    """A part of the object the segmenter left as background (a bunny's ear) lies between the fingers of
+    its pick: the closed fingers "touch" it. It is the object: ``cut_grasped`` takes it out of the map,
+    and nothing outside the fingers' span."""
+    from bimanual_app.robots import load_robot
+    from bimanual_app.tasks._motion import TaskMotion
+    from tests._task_fixtures import FIX_T_B1_B2, box_surface_points, table_points
+
+    obj = box_surface_points([0.30, 0.0, 0.03], [0.03, 0.03, 0.06], 800, visible_only=False)
+    ear = box_surface_points([0.30, 0.024, 0.045], [0.02, 0.012, 0.03], 300, seed=4)  # beside it, unlabelled
+    far = box_surface_points([0.30, 0.10, 0.03], [0.03, 0.03, 0.06], 300, seed=5)  # a real neighbour
+    motion = TaskMotion(load_robot("piper"), FIX_T_B1_B2, np.vstack([table_points(), obj, ear, far]), obj, obj,
+                        cut_radius=0.002)
+    T = np.eye(4)
+    T[:3, :3] = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]])  # from above, closing along b1's y
+    T[:3, 3] = [0.30, 0.0, 0.025]  # fingertips 2.5 cm up, the fingers above them
+    before = len(motion.cut_map.points)
+    n = motion.cut_grasped(T, 0.07)
+    assert n > 100 and len(motion.cut_map.points) == before - n
+    d, _ = motion._cut_tree.query(ear, k=1)
+    assert np.all(d > 1e-9)  # the ear is gone
+    d, _ = motion._cut_tree.query(far, k=1)
+    assert np.all(d < 1e-9)  # the neighbour stays
+    assert np.sum(motion.cut_map.points[:, 2] < 0.004) > 0.9 * len(table_points())  # and the table

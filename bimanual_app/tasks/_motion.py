@@ -202,6 +202,26 @@ class TaskMotion:
             raise PlanFailure("reach", f"the {arm} gripper cannot reach {p} in b1 with that orientation: {r.message}")
         return r.solutions
 
+    def cut_grasped(self, T_b1_g: np.ndarray, width: float, slack: float = 0.003) -> int:
+        """Cut out of the map (in the ``cut`` and ``attached`` contexts) the points between the open fingers
+        of a grasp (``T_b1_g`` (4,4) in b1, opening ``width`` m): what the fingers close on is the object,
+        whether or not the segmenter labelled it so (a bunny's ear left as background; the closed fingers
+        then "touched" it). Returns how many points were cut."""
+        from grasping import load_gripper
+
+        g = load_gripper(self.robot.name)
+        T = check_T("T_b1_g", T_b1_g)
+        P = self.cut_map.points
+        L = (P - T[:3, 3]) @ T[:3, :3]
+        inside = ((np.abs(L[:, 0]) <= max(abs(g.finger_x[0]), abs(g.finger_x[1])) + slack)
+                  & (np.abs(L[:, 1]) <= 0.5 * float(width)) & (L[:, 2] >= g.finger_z[0] - slack)
+                  & (L[:, 2] <= g.finger_z[1] + slack))
+        if inside.any():
+            self.cut_map = self.cut_map.without(inside)
+            self._cut_tree_ = None
+            self.stats["grasped_points_cut"] = self.stats.get("grasped_points_cut", 0) + int(inside.sum())
+        return int(inside.sum())
+
     def valid(self, q: dict) -> list[str]:
         """Problems of a configuration of both arms in the current context ([] when valid)."""
         if self.world.valid(q["primary"], q["secondary"]):

@@ -28,6 +28,9 @@ class Phase:
         note: what happens, for people.
         planner: how it was made (``ompl``, ``cartesian``, ``gripper``, ``hold``).
         check: the success check that runs at its end, if any (``lift``, ``handover``).
+        resting: arm name -> width (m) its fingers rest at on a held object in this phase (the object's
+            contact width): the collision checks take the fingers there, not where the commanded width
+            (closed, 0) would put them, inside the object.
     """
 
     name: str
@@ -35,6 +38,7 @@ class Phase:
     note: str = ""
     planner: str = ""
     check: str = ""
+    resting: dict = field(default_factory=dict)
 
     @property
     def duration(self) -> float:
@@ -137,11 +141,13 @@ class TaskPlan:
         return out
 
     def opening_spans(self) -> list[tuple[float, float, dict]]:
-        """Per phase on the shared clock: ``(t_start, t_end, arm -> widest gripper opening in it)``."""
+        """Per phase on the shared clock: ``(t_start, t_end, arm -> widest gripper opening in it)``, no
+        narrower than where its fingers rest on a held object (``Phase.resting``)."""
         out, t0 = [], 0.0
         for k, ph in enumerate(self.phases):
             trs = self.phase_trajectories(k)
-            out.append((t0, t0 + ph.duration, {a: float(np.max(tr.gripper)) for a, tr in trs.items()}))
+            out.append((t0, t0 + ph.duration, {a: max(float(np.max(tr.gripper)), float(ph.resting.get(a, 0.0)))
+                                               for a, tr in trs.items()}))
             t0 += ph.duration
         return out
 

@@ -433,6 +433,9 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
     # of _lift_directions, higher, or less far (the carry that follows is planned with the object
     # attached, clear of the table).
     dirs = _lift_directions(motion, pick.T_b1_g, object_points, up)
+    with motion.context("cut", openings={"primary": cw_g}):
+        if motion.valid(q):  # the closed fingers meet points the segment left out: the object's own
+            motion.cut_grasped(pick.T_b1_g, wg)
     tr, err = None, None
     for dist in HANDOVER_LIFTS:
         for how, d in dirs:
@@ -465,24 +468,40 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
                    "cartesian"))
     at.append("transfer")
     q, _ = plan.end_state()
-    with motion.context("attached", openings={"primary": cw_g}, attach=attach):
+    w0 = width_start["secondary"]
+    pre_rec = _pre(motion, rec)
+    with motion.context("attached", openings={"primary": cw_g, "secondary": w0}, attach=attach):
         sols = _goal_ik(motion, "primary", gt.T_b1_g, [gt.q, q["primary"]])
-        tr = motion.plan_free(["primary"], q, [{"primary": s} for s in sols[:4]])["primary"]
-    plan.add(Phase("transfer", {"primary": _jt(tr.times, tr.q, CLOSED)}, "object carried to the transfer pose",
-                   "ompl"))
+        if all(any("secondary" in w for w in motion.valid({**q, "primary": s_})) for s_ in sols[:4]):
+            # the transfer pose brings the object against the waiting secondary: it goes to its pre-grasp
+            # in the same motion (out of the way, to where it takes the object over)
+            # (opening on the way: checked at the wider of its two openings)
+            with motion.context("attached", openings={"primary": cw_g, "secondary": max(w0, wr)}, attach=attach):
+                sols_r = _goal_ik(motion, "secondary", pre_rec, [rec.q_pre, q_start["secondary"], rec.q])
+                goals = [{"primary": s1, "secondary": s2} for s1 in sols[:3] for s2 in sols_r[:3]]
+                goals = [g_ for g_ in goals if not motion.valid(g_)] or goals[:1]
+                tr = motion.plan_free(["primary", "secondary"], q, goals)
+            ts = tr["secondary"].times
+            plan.add(Phase("transfer", {"primary": _jt(tr["primary"].times, tr["primary"].q, CLOSED),
+                                        "secondary": _jt(ts, tr["secondary"].q, _ramp(ts, w0, wr))},
+                           "object carried to the transfer pose; the secondary to its pre-grasp, out of its way",
+                           "ompl"))
+        else:
+            tr = motion.plan_free(["primary"], q, [{"primary": s} for s in sols[:4]])["primary"]
+            plan.add(Phase("transfer", {"primary": _jt(tr.times, tr.q, CLOSED)}, "object carried to the transfer pose",
+                           "ompl"))
 
     at.append("receive-reach")
     # 6-8. the secondary takes it
-    q, _ = plan.end_state()
-    pre_rec = _pre(motion, rec)
+    q, w_now = plan.end_state()
+    w0 = w_now["secondary"]  # as it was (or opened to the receiver's width on a two-arm transfer)
     with motion.context("attached", openings={"primary": cw_g, "secondary": wr}, attach=attach):
-        sols = _approachable(motion, "secondary", _goal_ik(motion, "secondary", pre_rec, [rec.q_pre, q_start["secondary"],
-                                                                                          rec.q]), pre_rec, rec.T_b1_g)
+        seeds = [q["secondary"], rec.q_pre, q_start["secondary"], rec.q]
+        sols = _approachable(motion, "secondary", _goal_ik(motion, "secondary", pre_rec, seeds), pre_rec, rec.T_b1_g)
         # the goals open (checked at the receiver's opening); the way there keeps the gripper as it was: the
         # transfer pose may bring the object near the waiting secondary, whose fingers, opened where it
         # stands, would touch it before it moves
         sols = np.stack([s_ for s_ in sols if not motion.valid({**q, "secondary": s_})] or [sols[0]])
-    w0 = width_start["secondary"]
     try:
         with motion.context("attached", openings={"primary": cw_g, "secondary": w0}, attach=attach):
             tr = motion.plan_free(["secondary"], q, [{"secondary": s} for s in sols[:4]])["secondary"]
@@ -543,4 +562,10 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
     q, _ = plan.end_state()
     plan.add(Phase("hold", {"secondary": _jt([0.0, HOLD_S], np.stack([q["secondary"]] * 2), CLOSED)},
                    f"secondary holds the object alone for {HOLD_S:g} s", "hold", check="handover"))
+    # where each closed gripper's fingers rest on the object (the whole-plan validation takes them there,
+    # as the phases above were planned): the primary from its grasp to its release, the secondary after
+    held_by = {"primary": ("grasp", "lift", "transfer", "receive-reach", "receive-approach", "receive-grasp", "release"),
+               "secondary": ("receive-grasp", "release", "retreat", "home", "hold")}
+    for ph in plan.phases:
+        ph.resting = {a: w for a, w in (("primary", cw_g), ("secondary", cw_r)) if ph.name in held_by[a] and w > 0}
     return plan
