@@ -246,3 +246,30 @@ def test_points_between_the_open_fingers_of_a_pick_are_cut_as_the_object():
     d, _ = motion._cut_tree.query(far, k=1)
     assert np.all(d < 1e-9)  # the neighbour stays
     assert np.sum(motion.cut_map.points[:, 2] < 0.004) > 0.9 * len(table_points())  # and the table
+
+
+def test_handover_primary_stays_backed_off_when_its_start_is_where_the_object_is_held():
+    """The primary started where the object is handed over (its transfer pose): going home would put it
+    into the object the secondary now holds, so it stays backed off; the plan still validates."""
+    from bimanual_app.planning import default_ready
+    from bimanual_app.robots import load_robot
+    from bimanual_app.tasks._motion import TaskMotion
+    from bimanual_app.tasks._planners import plan_handover
+    from tests._task_fixtures import FIX_T_B1_B2, SMALL_BOX, _cloud, box_surface_points, fixture_grasps
+
+    robot = load_robot("piper")
+    pts, labels = _cloud()
+    obj = box_surface_points(SMALL_BOX["centre"], SMALL_BOX["size"], 1500, visible_only=False)
+    up = np.array([0.0, 0.0, 1.0])
+    motion = TaskMotion(robot, FIX_T_B1_B2, pts, obj, pts[labels == 0], up=up)
+    choice = handover_candidates(fixture_grasps(robot), "grasps.json")[0]
+    # the primary starts with its palm where the transfer pose holds the object (4 cm further in)
+    T_in = choice.giver_transfer.T_b1_g.copy()
+    T_in[:3, 3] += 0.04 * T_in[:3, 2]
+    q_start = {"primary": motion.ik("primary", T_in, choice.giver_transfer.q)[0], "secondary": default_ready(robot)}
+    assert not motion.valid(q_start)
+    plan = plan_handover(motion, choice, q_start, {"primary": 0.0, "secondary": 0.0}, obj, up=up)
+    names = [p.name for p in plan.phases]
+    assert "home" not in names and names[-2:] == ["retreat", "hold"]
+    assert plan.info["home"].startswith("skipped: the primary's start pose meets the held object")
+    motion.validate_timeline(plan.timeline(), plan.opening_spans())

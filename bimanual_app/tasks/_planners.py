@@ -557,8 +557,13 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
     # the primary goes back to its start; the object, now in the secondary's gripper, is an obstacle
     q, _ = plan.end_state()
     with motion.context("attached", openings={"primary": wl, "secondary": cw_r}, attach=held):
-        tr = motion.plan_free(["primary"], q, [{"primary": q_start["primary"]}])["primary"]
-    plan.add(Phase("home", {"primary": _jt(tr.times, tr.q, wl)}, "primary back to its start pose", "ompl"))
+        home_blocked = motion.valid({"primary": q_start["primary"], "secondary": q["secondary"]})
+        if not home_blocked:
+            tr = motion.plan_free(["primary"], q, [{"primary": q_start["primary"]}])["primary"]
+    if home_blocked:  # the object, now held by the secondary, is where the primary started: it stays backed off
+        plan.info["home"] = f"skipped: the primary's start pose meets the held object ({home_blocked[0]})"
+    else:
+        plan.add(Phase("home", {"primary": _jt(tr.times, tr.q, wl)}, "primary back to its start pose", "ompl"))
     q, _ = plan.end_state()
     plan.add(Phase("hold", {"secondary": _jt([0.0, HOLD_S], np.stack([q["secondary"]] * 2), CLOSED)},
                    f"secondary holds the object alone for {HOLD_S:g} s", "hold", check="handover"))
