@@ -40,6 +40,7 @@ MAP_RESOLUTION = 0.005  # m: voxel size of the task's collision map
 OBJECT_CLEARANCE = 0.002  # m: a carried object's points keep this far from the map's points
 TOUCH_BAND = 0.005  # m: object points this much nearer than that where it lies touch a neighbour (not checked)
 CONTACT_MARGIN = 0.003  # m: clearance of the moves in contact (approach, squeeze, lift, place, retreat)
+OBJECT_PADDING = 0.002  # m the carried object's box is grown by past its points
 
 
 def robot_points_mask(points: np.ndarray, labels: np.ndarray, bases_b1: np.ndarray, up: np.ndarray,
@@ -153,12 +154,15 @@ class TaskMotion:
 
     # ------------------------------------------------------------------ collision context
     @contextlib.contextmanager
-    def context(self, object_mode: str = "map", openings: dict | None = None, attach: tuple | None = None):
+    def context(self, object_mode: str = "map", openings: dict | None = None, attach: tuple | None = None,
+                object_padding: float = OBJECT_PADDING):
         """Set the world for a query, restore it after.
 
         object_mode: ``map`` (the object is an obstacle), ``cut`` (ignored: the fingers meet it), or
             ``attached`` (cut from the map and attached to ``attach = (arm, q_at_attach, points_b1)``).
         openings: arm name -> gripper opening (m) for the finger shapes.
+        object_padding: the attached object's box grows by this (m) past its points; negative shrinks it,
+            so that the free-motion margin to it is less (never below the contact margin: see the callers).
 
         In ``cut`` (the slow straight moves in contact: approach, squeeze, lift, place, retreat) the arms
         keep ``contact_margin`` from the scene instead of ``margin``: the clearance the grasping stage
@@ -175,7 +179,7 @@ class TaskMotion:
             w.set_opening(arm, o)
         if object_mode == "attached":
             arm, q, pts = attach
-            w.attach(arm, pts, q, name="object", padding=0.002, axis_b1=self.up)
+            w.attach(arm, pts, q, name="object", padding=object_padding, axis_b1=self.up)
         try:
             yield w
         finally:

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._grasps import GraspSpec, HandoverChoice, JointChoice
-from ._motion import PlanFailure, TaskMotion, line_poses, translate_along
+from ._motion import CONTACT_MARGIN, OBJECT_PADDING, PlanFailure, TaskMotion, line_poses, translate_along
 from ._plan import Phase, TaskPlan
 
 __all__ = ["plan_joint_grasp", "plan_handover", "object_lifts", "LIFT", "HOLD_S"]
@@ -495,20 +495,47 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
     # 6-8. the secondary takes it
     q, w_now = plan.end_state()
     w0 = w_now["secondary"]  # as it was (or opened to the receiver's width on a two-arm transfer)
-    with motion.context("attached", openings={"primary": cw_g, "secondary": wr}, attach=attach):
-        seeds = [q["secondary"], rec.q_pre, q_start["secondary"], rec.q]
-        sols = _approachable(motion, "secondary", _goal_ik(motion, "secondary", pre_rec, seeds), pre_rec, rec.T_b1_g)
-        # the goals open (checked at the receiver's opening); the way there keeps the gripper as it was: the
-        # transfer pose may bring the object near the waiting secondary, whose fingers, opened where it
-        # stands, would touch it before it moves
-        sols = np.stack([s_ for s_ in sols if not motion.valid({**q, "secondary": s_})] or [sols[0]])
+    # the pre-grasp, or further back along the same line where its open fingers are within the free-motion
+    # margin of the carried object (a pre-grasp the grasping stage kept short near the edge of the reach)
+    back = pre_rec[:3, 3] - rec.T_b1_g[:3, 3]
+    back = back / max(np.linalg.norm(back), 1e-9)
+    # As the last resort (a receiver at the edge of its reach, its pre-grasp short and no further one
+    # reachable), its open fingers may come within about half the free-motion margin of the carried object
+    # there (its box shrunk): the straight approach that follows passes the fingers that near it anyway
+    # (the receiver's clearance, 1 cm a side).
+    sols, err, pad = None, None, OBJECT_PADDING
+    near_pad = OBJECT_PADDING - 0.5 * (motion.world.margin - CONTACT_MARGIN) - 0.002
+    for extra, pad in ((0.0, OBJECT_PADDING), (0.02, OBJECT_PADDING), (0.04, OBJECT_PADDING), (0.0, near_pad)):
+        with motion.context("attached", openings={"primary": cw_g, "secondary": wr}, attach=attach,
+                            object_padding=pad):
+            T_pre = pre_rec.copy()
+            T_pre[:3, 3] += extra * back
+            try:
+                seeds = [q["secondary"], rec.q_pre, q_start["secondary"], rec.q]
+                cand = _approachable(motion, "secondary", _goal_ik(motion, "secondary", T_pre, seeds), T_pre, rec.T_b1_g)
+            except PlanFailure as e:
+                err = err or e
+                continue
+            # the goals open (checked at the receiver's opening); the way there keeps the gripper as it was:
+            # the transfer pose may bring the object near the waiting secondary, whose fingers, opened where
+            # it stands, would touch it before it moves
+            ok = [s_ for s_ in cand if not motion.valid({**q, "secondary": s_})]
+        if ok or sols is None:
+            sols, pre_used, pad_used = np.stack(ok or [cand[0]]), T_pre, pad
+        if ok:
+            break
+    if sols is None:
+        raise err
+    pre_rec = pre_used
     try:
-        with motion.context("attached", openings={"primary": cw_g, "secondary": w0}, attach=attach):
+        with motion.context("attached", openings={"primary": cw_g, "secondary": w0}, attach=attach,
+                            object_padding=pad_used):
             tr = motion.plan_free(["secondary"], q, [{"secondary": s} for s in sols[:4]])["secondary"]
         times = np.concatenate([tr.times, tr.times[-1] + np.array([0.5 * CLOSE_S, CLOSE_S])])
         jt = _jt(times, np.concatenate([tr.q, [tr.q[-1], tr.q[-1]]]), np.r_[np.full(len(tr.times), w0), 0.5 * (w0 + wr), wr])
     except PlanFailure:  # where the goal needs the fingers open already (they straddle the object's edge)
-        with motion.context("attached", openings={"primary": cw_g, "secondary": wr}, attach=attach):
+        with motion.context("attached", openings={"primary": cw_g, "secondary": wr}, attach=attach,
+                            object_padding=pad_used):
             tr = motion.plan_free(["secondary"], q, [{"secondary": s} for s in sols[:4]])["secondary"]
         jt = _jt(tr.times, tr.q, _ramp(tr.times, w0, wr))
     plan.add(Phase("receive-reach", {"secondary": jt}, "secondary to its pre-grasp at the transfer pose, opening",
