@@ -273,3 +273,35 @@ def test_handover_primary_stays_backed_off_when_its_start_is_where_the_object_is
     assert "home" not in names and names[-2:] == ["retreat", "hold"]
     assert plan.info["home"].startswith("skipped: the primary's start pose meets the held object")
     motion.validate_timeline(plan.timeline(), plan.opening_spans())
+
+
+def test_receiver_pre_grasp_backs_off_where_its_open_fingers_are_too_near_the_carried_object():
+    """A receiver pre-grasp only 1.5 cm back from its grasp (the grasping stage keeps them short near the
+    edge of the reach) leaves its open fingers within the free-motion margin of the carried object: the
+    secondary goes to a pre-grasp further back along the same line, and approaches from there."""
+    from dataclasses import replace
+
+    from bimanual_app.planning import default_ready
+    from bimanual_app.robots import load_robot
+    from bimanual_app.tasks._motion import TaskMotion, translate_along
+    from bimanual_app.tasks._planners import plan_handover
+    from tests._task_fixtures import FIX_T_B1_B2, SMALL_BOX, _cloud, box_surface_points, fixture_grasps
+
+    robot = load_robot("piper")
+    pts, labels = _cloud()
+    obj = box_surface_points(SMALL_BOX["centre"], SMALL_BOX["size"], 1500, visible_only=False)
+    up = np.array([0.0, 0.0, 1.0])
+    motion = TaskMotion(robot, FIX_T_B1_B2, pts, obj, pts[labels == 0], up=up)
+    choice = handover_candidates(fixture_grasps(robot), "grasps.json")[0]
+    R = choice.receiver.T_b1_g
+    short = translate_along(R, R[:3, 2], -0.015)
+    # opened 5 mm past the 4 cm box on each side: 1.5 cm back, the fingertips still reach past its near face
+    rec = replace(choice.receiver, q_pre=motion.ik("secondary", short, choice.receiver.q)[0], width=0.05)
+    choice = replace(choice, receiver=rec)
+    q_start = {"primary": default_ready(robot), "secondary": default_ready(robot)}
+    plan = plan_handover(motion, choice, q_start, {"primary": 0.0, "secondary": 0.0}, obj, up=up)
+    appr = next(p for p in plan.phases if p.name == "receive-approach").trajectories["secondary"]
+    start = motion.tcp_pose("secondary", appr.q[0])[:3, 3]
+    assert np.linalg.norm(start - R[:3, 3]) > 0.03  # 3.5 or 5.5 cm back, not 1.5
+    assert np.allclose(np.cross(start - R[:3, 3], R[:3, 2]), 0, atol=2e-3)  # on the approach line
+    motion.validate_timeline(plan.timeline(), plan.opening_spans())
