@@ -166,6 +166,7 @@ def object_geometry(obj_id: int, P: np.ndarray, support: Support, voxel: float =
     geo = ObjectGeometry(int(obj_id), len(P), Q, N, T, extent, centre, voxel)
     if not complete:
         return geo
+    geo = complete_cylinder(geo, support, bottom)
     geo = complete_by_symmetry(geo, support)
     big = min(extent[0], extent[1]) >= WALLS_MIN_SIDE
     if bottom == 0.0 and big and _footprint_cover(P @ u, P @ v, (lo_u, hi_u), (lo_v, hi_v)) >= WALLS_MIN_COVER:
@@ -265,6 +266,91 @@ def _add_unseen(geo: ObjectGeometry, Q: np.ndarray, Nq: np.ndarray, gap: float) 
     return ObjectGeometry(geo.id, geo.n_points, np.concatenate([geo.points, Q[new]]), np.concatenate([geo.normals, Nq[new]]),
                           geo.T_b1_box, geo.extent, geo.centre, geo.voxel,
                           np.concatenate([geo.observed, np.zeros(int(new.sum()), dtype=bool)]))
+
+
+CYL_RADIUS = (0.012, 0.06)  # m: radii of the cans, bottles and mugs completed as cylinders
+CYL_MAX_RMS = 0.06  # ... whose side points fit a circle within this share of its radius (RMS) ...
+CYL_ARC = (np.deg2rad(90.0), np.deg2rad(300.0))  # ... over an arc this wide (more: seen all round)
+CYL_MIN_RADIAL = 0.9  # ... with normals this well along the radius (mean |cos|; a box's corner: ~0.7)
+
+
+def complete_cylinder(geo: ObjectGeometry, support: Support, bottom: float = 0.0) -> ObjectGeometry:
+    """Complete an upright cylinder seen from one side (a can, a bottle, a mug's body) with its unseen arc.
+
+    Its seen side is an arc of a circle in the table plane. Turned about the centre of its box, as
+    :func:`complete_by_symmetry` does, a half shell stays a half shell: the box of a shell is about half as
+    deep as the cylinder, so the turned points land on the seen ones (a 7.5 cm can came out as a 3.5 cm
+    shell, its grasps sized for that, and the fingers met the real can). A least-squares circle through
+    the seen side points gives the real centre and radius; the unseen arc is added (``observed=False``),
+    from ``bottom`` (the elevation of the box's bottom) to the top, and the box grows to hold it.
+
+    Completed only when the side points fit a circle closely (``CYL_MAX_RMS`` of the radius), the radius
+    is a graspable cylinder's (``CYL_RADIUS``), the points cover an arc of ``CYL_ARC`` about the centre,
+    and their normals point along the radius (``CYL_MIN_RADIAL``): a box's corner or an irregular toy
+    fits none of these. Returns ``geo`` unchanged otherwise.
+    """
+    up = support.up
+    obs = geo.observed
+    side = obs & (np.abs(geo.normals @ up) < 0.3)
+    if side.sum() < 30:
+        return geo
+    e1, e2 = _perp_basis(up)
+    S = geo.points[side]
+    xy = np.stack([S @ e1, S @ e2], axis=1)
+    # algebraic (Kasa) circle fit: x^2 + y^2 + D x + E y + F = 0, least squares (a small linear solve;
+    # written here rather than pulled from a library: scikit-image's CircleModel is the same three lines)
+    A = np.c_[xy, np.ones(len(xy))]
+    D, E, F = np.linalg.lstsq(A, -(xy ** 2).sum(axis=1), rcond=None)[0]
+    c = -0.5 * np.array([D, E])
+    r2 = c @ c - F
+    if r2 <= 0:
+        return geo
+    r = float(np.sqrt(r2))
+    rel = xy - c
+    dist = np.linalg.norm(rel, axis=1)
+    if not (CYL_RADIUS[0] <= r <= CYL_RADIUS[1]) or np.sqrt(np.mean((dist - r) ** 2)) > CYL_MAX_RMS * r:
+        return geo
+    radial = rel / np.maximum(dist[:, None], 1e-9)
+    n2 = np.stack([geo.normals[side] @ e1, geo.normals[side] @ e2], axis=1)
+    n2 /= np.maximum(np.linalg.norm(n2, axis=1, keepdims=True), 1e-9)
+    if np.mean(np.abs(np.einsum("ij,ij->i", n2, radial))) < CYL_MIN_RADIAL:
+        return geo
+    # the arc the points cover: the largest gap between their angles is the unseen part
+    ang = np.sort(np.arctan2(rel[:, 1], rel[:, 0]))
+    gaps = np.diff(np.r_[ang, ang[0] + 2 * np.pi])
+    k = int(np.argmax(gaps))
+    covered = 2 * np.pi - float(gaps[k])
+    if not (CYL_ARC[0] <= covered <= CYL_ARC[1]):
+        return geo
+    step = geo.voxel / r
+    a_new = ang[k] + np.arange(step, gaps[k] - 0.5 * step, step)
+    elev = support.elevation(geo.points[obs])
+    top = float(np.percentile(elev, 99.5))
+    zs = np.arange(bottom + 0.5 * geo.voxel, top, geo.voxel)
+    if not len(a_new) or not len(zs):
+        return geo
+    ring = np.stack([np.cos(a_new), np.sin(a_new)], axis=1)
+    base = (c[0] + r * ring[:, :1]) * e1 + (c[1] + r * ring[:, 1:]) * e2  # (A, 3) in the plane through 0
+    h0 = support.height
+    Q = (base[:, None, :] + (h0 + zs)[None, :, None] * up).reshape(-1, 3)
+    Nq = np.repeat(ring[:, :1] * e1 + ring[:, 1:] * e2, len(zs), axis=0)
+    out = _add_unseen(geo, Q, Nq, 1.5 * geo.voxel)
+    if out is geo:
+        return geo
+    # the box grows to hold the whole cylinder (its axes stay)
+    u, v = geo.T_b1_box[:3, 0], geo.T_b1_box[:3, 1]
+    pu, pv = out.points @ u, out.points @ v
+    lo_u, hi_u = min(pu.min(), (geo.centre - 0.5 * geo.extent[0] * u) @ u), max(pu.max(), (geo.centre + 0.5 * geo.extent[0] * u) @ u)
+    lo_v, hi_v = min(pv.min(), (geo.centre - 0.5 * geo.extent[1] * v) @ v), max(pv.max(), (geo.centre + 0.5 * geo.extent[1] * v) @ v)
+    zc = geo.centre @ up
+    centre = 0.5 * (lo_u + hi_u) * u + 0.5 * (lo_v + hi_v) * v + zc * up
+    T = geo.T_b1_box.copy()
+    T[:3, 3] = centre
+    extent = np.array([hi_u - lo_u, hi_v - lo_v, geo.extent[2]])
+    if extent[1] > extent[0]:  # x stays along the longer side
+        T[:3, 0], T[:3, 1] = v, -u
+        extent[:2] = extent[1::-1]
+    return ObjectGeometry(out.id, out.n_points, out.points, out.normals, T, extent, centre, out.voxel, out.observed)
 
 
 def complete_by_symmetry(geo: ObjectGeometry, support: Support, gap: float | None = None) -> ObjectGeometry:

@@ -40,10 +40,13 @@ def test_unseen_space_fills_the_unseen_half_and_nothing_around_a_seen_object():
     assert len(unseen_space(P2[L2 == 0], P2[L2 < 0], P2[L2 > 0], estimate_support(P2, L2))) == 0
 
 
-def test_grasps_of_a_half_seen_cylinder_do_not_close_across_the_seen_shell():
+def test_grasps_of_a_half_seen_cylinder_do_not_close_across_the_seen_shell(monkeypatch):
     """Seen from one side the cylinder is a 2.5 cm deep shell: a grasp closing across that depth puts a
-    finger into its unseen half. Such grasps exist when the unseen space is ignored (the default), and
-    none is kept when it is solid (``unseen_radius``); grasps closing across the seen 5 cm width remain."""
+    finger into its unseen half. Completed as a cylinder (``complete_cylinder``, the default), every grasp
+    closes on its whole 5 cm. Without that completion, such grasps exist when the unseen space is ignored,
+    and none is kept when it is solid (``unseen_radius``); grasps closing across the seen 5 cm width remain."""
+    import grasping._objects as objects
+
     P, L = _half_seen_cylinder()
 
     def across_depth(params):
@@ -51,12 +54,15 @@ def test_grasps_of_a_half_seen_cylinder_do_not_close_across_the_seen_shell():
         gs = plan.objects[0].grasps
         assert gs is not None and len(gs), plan.objects[0].notes
         closing = gs.T_b1_g[:, :3, 1]
-        return int(np.sum(np.abs(closing[:, 1]) > 0.9)), len(gs)
+        return int(np.sum(np.abs(closing[:, 1]) > 0.9)), gs
 
+    _, gs = across_depth(PlanParams(handover=False))
+    assert np.all(gs.contact_width > DIAMETER - 0.005)  # on the whole cylinder, not across the shell
+    monkeypatch.setattr(objects, "complete_cylinder", lambda geo, support, bottom=0.0: geo)
     n_ignored, _ = across_depth(PlanParams(handover=False))
-    n_solid, n_all = across_depth(PlanParams(handover=False, unseen_radius=0.05))
+    n_solid, gs_solid = across_depth(PlanParams(handover=False, unseen_radius=0.05))
     assert n_ignored > 0
-    assert n_solid == 0 and n_all > 0
+    assert n_solid == 0 and len(gs_solid) > 0
 
 
 def _cylinder_normals(P):
