@@ -338,10 +338,12 @@ def complete_cylinder(geo: ObjectGeometry, support: Support, bottom: float = 0.0
     if out is geo:
         return geo
     # the box grows to hold the whole cylinder (its axes stay)
+    # (the fitted circle's square: not the points' extremes, whose noise and the depth blur of the fused
+    # views widen it by millimetres, and millimetres decide whether a 6.5 cm can fits the stroke)
     u, v = geo.T_b1_box[:3, 0], geo.T_b1_box[:3, 1]
-    pu, pv = out.points @ u, out.points @ v
-    lo_u, hi_u = min(pu.min(), (geo.centre - 0.5 * geo.extent[0] * u) @ u), max(pu.max(), (geo.centre + 0.5 * geo.extent[0] * u) @ u)
-    lo_v, hi_v = min(pv.min(), (geo.centre - 0.5 * geo.extent[1] * v) @ v), max(pv.max(), (geo.centre + 0.5 * geo.extent[1] * v) @ v)
+    c3 = c[0] * e1 + c[1] * e2
+    lo_u, hi_u = c3 @ u - r, c3 @ u + r
+    lo_v, hi_v = c3 @ v - r, c3 @ v + r
     zc = geo.centre @ up
     centre = 0.5 * (lo_u + hi_u) * u + 0.5 * (lo_v + hi_v) * v + zc * up
     T = geo.T_b1_box.copy()
