@@ -270,7 +270,10 @@ def _add_unseen(geo: ObjectGeometry, Q: np.ndarray, Nq: np.ndarray, gap: float) 
 
 CYL_RADIUS = (0.012, 0.06)  # m: radii of the cans, bottles and mugs completed as cylinders
 CYL_MAX_RMS = 0.06  # ... whose side points fit a circle within this share of its radius (RMS) ...
-CYL_ARC = (np.deg2rad(90.0), np.deg2rad(300.0))  # ... over an arc this wide (more: seen all round)
+# ... over an arc this wide: seen over more, the box of the points already spans (nearly) the diameter and
+# the symmetric completion suffices; completing those anyway cost cans near the stroke limit their grasps
+# (the added arc a little outside the mirrored points, trusted less by the score)
+CYL_ARC = (np.deg2rad(90.0), np.deg2rad(210.0))
 CYL_MIN_RADIAL = 0.9  # ... with normals this well along the radius (mean |cos|; a box's corner: ~0.7)
 
 
