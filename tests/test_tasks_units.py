@@ -190,14 +190,11 @@ def test_grasping_checks_push_approaches_where_the_task_stops_them():
     assert PushParams().standoff == pytest.approx(PUSH_STANDOFF)
 
 
-def test_handover_moves_a_secondary_in_the_way_aside_during_the_transfer():
-    """A secondary waiting where the object is carried to: the transfer pose would put the object against
-    it, so it goes to its pre-grasp in the same (12-DoF) motion; the plan then validates as a whole, its
-    held fingers taken where they rest on the object (``Phase.resting``)."""
-    from bimanual_app.planning import default_ready
+def _handover_fixture():
+    """(robot, TaskMotion, the fixture's best hand-over choice, the small box's points (M,3), up (3,)) for
+    planning the fixture's hand-over directly."""
     from bimanual_app.robots import load_robot
     from bimanual_app.tasks._motion import TaskMotion
-    from bimanual_app.tasks._planners import plan_handover
     from tests._task_fixtures import FIX_T_B1_B2, SMALL_BOX, _cloud, box_surface_points, fixture_grasps
 
     robot = load_robot("piper")
@@ -205,7 +202,17 @@ def test_handover_moves_a_secondary_in_the_way_aside_during_the_transfer():
     obj = box_surface_points(SMALL_BOX["centre"], SMALL_BOX["size"], 1500, visible_only=False)
     up = np.array([0.0, 0.0, 1.0])
     motion = TaskMotion(robot, FIX_T_B1_B2, pts, obj, pts[labels == 0], up=up)
-    choice = handover_candidates(fixture_grasps(robot), "grasps.json")[0]
+    return robot, motion, handover_candidates(fixture_grasps(robot), "grasps.json")[0], obj, up
+
+
+def test_handover_moves_a_secondary_in_the_way_aside_during_the_transfer():
+    """A secondary waiting where the object is carried to: the transfer pose would put the object against
+    it, so it goes to its pre-grasp in the same (12-DoF) motion; the plan then validates as a whole, its
+    held fingers taken where they rest on the object (``Phase.resting``)."""
+    from bimanual_app.planning import default_ready
+    from bimanual_app.tasks._planners import plan_handover
+
+    robot, motion, choice, obj, up = _handover_fixture()
     # the secondary stands with its gripper where the receiver grasp will be, closed
     q_start = {"primary": default_ready(robot), "secondary": choice.receiver.q}
     assert not motion.valid(q_start)
@@ -252,17 +259,9 @@ def test_handover_primary_stays_backed_off_when_its_start_is_where_the_object_is
     """The primary started where the object is handed over (its transfer pose): going home would put it
     into the object the secondary now holds, so it stays backed off; the plan still validates."""
     from bimanual_app.planning import default_ready
-    from bimanual_app.robots import load_robot
-    from bimanual_app.tasks._motion import TaskMotion
     from bimanual_app.tasks._planners import plan_handover
-    from tests._task_fixtures import FIX_T_B1_B2, SMALL_BOX, _cloud, box_surface_points, fixture_grasps
 
-    robot = load_robot("piper")
-    pts, labels = _cloud()
-    obj = box_surface_points(SMALL_BOX["centre"], SMALL_BOX["size"], 1500, visible_only=False)
-    up = np.array([0.0, 0.0, 1.0])
-    motion = TaskMotion(robot, FIX_T_B1_B2, pts, obj, pts[labels == 0], up=up)
-    choice = handover_candidates(fixture_grasps(robot), "grasps.json")[0]
+    robot, motion, choice, obj, up = _handover_fixture()
     # the primary starts with its palm where the transfer pose holds the object (4 cm further in)
     T_in = choice.giver_transfer.T_b1_g.copy()
     T_in[:3, 3] += 0.04 * T_in[:3, 2]
@@ -282,17 +281,10 @@ def test_receiver_pre_grasp_backs_off_where_its_open_fingers_are_too_near_the_ca
     from dataclasses import replace
 
     from bimanual_app.planning import default_ready
-    from bimanual_app.robots import load_robot
-    from bimanual_app.tasks._motion import TaskMotion, translate_along
+    from bimanual_app.tasks._motion import translate_along
     from bimanual_app.tasks._planners import plan_handover
-    from tests._task_fixtures import FIX_T_B1_B2, SMALL_BOX, _cloud, box_surface_points, fixture_grasps
 
-    robot = load_robot("piper")
-    pts, labels = _cloud()
-    obj = box_surface_points(SMALL_BOX["centre"], SMALL_BOX["size"], 1500, visible_only=False)
-    up = np.array([0.0, 0.0, 1.0])
-    motion = TaskMotion(robot, FIX_T_B1_B2, pts, obj, pts[labels == 0], up=up)
-    choice = handover_candidates(fixture_grasps(robot), "grasps.json")[0]
+    robot, motion, choice, obj, up = _handover_fixture()
     R = choice.receiver.T_b1_g
     short = translate_along(R, R[:3, 2], -0.015)
     # opened 5 mm past the 4 cm box on each side: 1.5 cm back, the fingertips still reach past its near face
