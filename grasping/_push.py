@@ -69,7 +69,15 @@ class PushParams:
         the rest of the scene (table, neighbours) lie ``beyond`` (from, to; m) past it, across its width.
         Otherwise the cameras saw nothing there, and the object may go on (a box seen over half its length
         ends where the views end: pushed there, the fingertips meet the box's unseen top).
+    face_shortfall, top_margin: the gripper pressed ``press + face_shortfall`` past the face (a face's points
+        miss its last millimetres: the bench's cartons came out 4-10 mm shorter than they are, so the real
+        face is that much further out and the fingers go that much deeper into it) keeps ``top_margin`` from
+        the object's top face (its upward-facing points inside the face). A steep finger whose tips press
+        1.5 cm under the top edge crosses the face plane higher up, and pressed that deep it lay on the top
+        edge: in the task bench's ground-truth preview (seed 11) it rode onto the top and the carton slipped
+        out of both grippers, while the preview on the slightly shorter estimate held it.
     """
+
 
     rolls: tuple[float, ...] = (0.0, np.pi / 2, np.pi / 4, -np.pi / 4)
     heights: tuple[float, ...] = (0.3, 0.1, 0.5, 0.7)
@@ -92,6 +100,8 @@ class PushParams:
     contact_margin: float = 0.003
     beyond: tuple[float, float] = (0.01, 0.15)
     beyond_min_points: int = 50
+    face_shortfall: float = 0.005
+    top_margin: float = 0.0
 
 
 def _without_near(octree: SceneOctree, points: np.ndarray, radius: float) -> SceneOctree:
@@ -133,9 +143,11 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
         tips.append(c[np.argsort(-c[:, 2])[:4]])
     all_corners = np.concatenate([s.corners_g(w) for s in gripper.shapes])
     st = stats if stats is not None else {}
-    for k in ("faces_seen", "unseen_beyond", "candidates", "off_face", "unseen", "outside_cone", "near_table", "hits_object", "hits_scene", "kept"):
+    for k in ("faces_seen", "unseen_beyond", "candidates", "off_face", "unseen", "outside_cone", "near_table",
+              "on_top_edge", "hits_object", "hits_scene", "kept"):
         st[k] = 0
     rows = []  # (T, face axis, face sign, height fraction, tilt, pad alignment, contact width, n, seen, contact)
+    tops = {}  # (axis, sign) -> octree of the top face's points inside that face (see ``top_margin``)
     for axis in (0, 1):
         for sign in (1.0, -1.0):
             n = sign * B[:3, axis]  # outward face normal
@@ -161,6 +173,8 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
             face_off = float(np.median(along[own_face])) if own_face.sum() >= params.min_pad_points \
                 else float(np.percentile(along[near_face], 90))
             on_face = np.abs(along - face_off) < params.pad_depth
+            top = (N @ up > 0.8) & (hgt > 0.5 * ext[2] - 0.02) & (along < face_off - params.pad_depth)
+            tops[(axis, sign)] = SceneOctree(P[top], 0.002) if top.any() else None
             obs = geo.observed
             # the face as a whole: planar (a plane fits its points within face_rms) and inside the friction
             # cone; then a fingertip on a part of it no camera saw still lands on it (the box model)
@@ -265,6 +279,16 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
     at_contact = ~collider.collides(contact_map, T, wv, swept=False, margin=params.contact_margin)
     at_contact[at_contact] = ~collider.collides(contact_map, T_in[at_contact], wv[at_contact], swept=False,
                                                 margin=params.contact_margin)
+    T_deep = T.copy()
+    T_deep[:, :3, 3] -= (params.press + params.face_shortfall) * nrm
+    faces = [(r[1], r[2]) for r in rows]
+    under_top = np.ones(len(T), dtype=bool)
+    for key, tree in tops.items():
+        idx = np.array([i for i, f in enumerate(faces) if f == key and at_contact[i]], dtype=int)
+        if tree is not None and len(idx):
+            under_top[idx] = ~collider.collides(tree, T_deep[idx], wv[idx], swept=False, margin=params.top_margin)
+    st["on_top_edge"] = int((at_contact & ~under_top).sum())
+    at_contact &= under_top
     for r in range(retreats.shape[1]):
         free = at_contact.copy()
         for dist in np.linspace(0.0, params.approach, 4):
@@ -281,7 +305,7 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
         path_ok[:, r] = free
     free = path_ok.any(axis=1)
     st["hits_object"] = int(hit_obj.sum())
-    st["hits_scene"] = int((~free & ~hit_obj).sum())
+    st["hits_scene"] = int((~free & ~hit_obj & under_top).sum())
     st["kept"] = int(free.sum())
     keep = np.nonzero(free)[0]
     if len(keep) == 0:

@@ -324,3 +324,26 @@ def test_steep_push_contacts_lean_about_the_face_normal():
     steep = -(z @ up) > np.cos(np.deg2rad(45))
     along_face = np.abs(np.einsum("ij,ij->i", z, t))
     assert np.any(steep & (along_face > np.sin(np.deg2rad(20))))
+
+
+def test_push_contacts_pressed_past_a_short_face_stay_off_the_top():
+    """A carton's face in the cloud misses its last millimetres (the real face is ``face_shortfall``
+    further out), so the task's squeeze drives the fingers ``press + face_shortfall`` into the real box.
+    No gripper part of a kept push contact is then on the box's top face; on a low carton some contacts
+    (steep fingers with their tips high on the face) are refused for it and counted."""
+    from grasping import PushParams
+
+    box = Obj("box", (0.3, 0.0), (0.16, 0.32, 0.06), 0.0)
+    P, L = make_cloud([box], table_size=(0.8, 0.8))
+    push, stats, geo = _push_faces(P, L)
+    assert stats["on_top_edge"] > 0 and len(push) > 20
+    pp = PushParams()
+    deep = push.T_b1_g.copy()
+    deep[:, :3, 3] += (pp.press + pp.face_shortfall) * push.extra["squeeze"]
+    g = load_gripper()
+    from grasping import SceneOctree
+
+    top = P[(L == 0) & (P[:, 2] > 0.06 - 1e-6)]
+    # the top inside the faces (a finger beside the face, pressed in, may pass over its very edge)
+    inner = top[(np.abs(top[:, 0] - 0.3) < 0.08 - 0.008) & (np.abs(top[:, 1]) < 0.16 - 0.008)]
+    assert not GripperCollider(g).collides(SceneOctree(inner, 0.002), deep, push.width, swept=False).any()
