@@ -20,7 +20,7 @@ import numpy as np
 from bimanual_app.io_utils import Problem
 
 __all__ = ["Support", "ObjectGeometry", "estimate_support", "object_geometry", "check_graspable", "closed_geometry",
-           "complete_by_symmetry", "complete_walls", "hides_table"]
+           "complete_by_symmetry", "complete_walls", "hides_table", "fit_circle", "primitive_fit"]
 
 
 @dataclass(frozen=True)
@@ -277,6 +277,82 @@ CYL_ARC = (np.deg2rad(90.0), np.deg2rad(210.0))
 CYL_MIN_RADIAL = 0.9  # ... with normals this well along the radius (mean |cos|; a box's corner: ~0.7)
 
 
+def fit_circle(xy: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """Least-squares circle through points ``xy`` (M, 2): (centre (2,), radius), or None when degenerate.
+
+    Algebraic (Kasa) fit: x^2 + y^2 + D x + E y + F = 0 by linear least squares (a small linear solve;
+    written here rather than pulled from a library: scikit-image's CircleModel is the same three lines)."""
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    if len(xy) < 3:
+        return None
+    A = np.c_[xy, np.ones(len(xy))]
+    D, E, F = np.linalg.lstsq(A, -(xy ** 2).sum(axis=1), rcond=None)[0]
+    c = -0.5 * np.array([D, E])
+    r2 = float(c @ c - F)
+    if r2 <= 0:
+        return None
+    return c, float(np.sqrt(r2))
+
+
+PRIMITIVE_TOL = 0.005  # m: a seen point this near a box's or cylinder's surface fits it (cloud noise ~2-3 mm)
+PRIMITIVE_MIN_FIT = 0.9  # share of the seen points that must fit; the bench's mugs, ducks, bunnies and tori: <= 0.86
+TOP_CELL = 0.01  # m: cells of a cylinder's top disc that must hold a point at the top (a mug shows a rim only)
+
+
+def primitive_fit(geo: ObjectGeometry, support: Support, tol: float = PRIMITIVE_TOL) -> tuple[str, float]:
+    """Whether the object's seen points are a box or an upright cylinder: ``("box" | "cylinder", fit)`` when
+    at least ``PRIMITIVE_MIN_FIT`` of them lie within ``tol`` of that primitive's surface, else
+    ``("free-form", best fit)``.
+
+    The box is the object's gravity-aligned box (``geo.T_b1_box``, ``geo.extent``); the cylinder is the
+    least-squares circle of the side points (radius ``CYL_RADIUS``) from the table to the top, and it must
+    also be closed at the top: the cells (``TOP_CELL``) of its top disc, 7 mm in from the rim, each hold a
+    point at the top's height (a mug seen from above shows its rim and its inside, not a lid). Only seen
+    points count (``geo.observed``): completion fills in the primitive it assumes.
+
+    A hand-over of an object whose shape the cloud determines is safer than of a free-form one (a mug's
+    handle or a bunny's far side that no camera saw meets the receiver's fingers; on the task bench, two
+    such hand-overs passed the preview on the reconstruction and failed in reality, where the scene's
+    cylinder, chosen instead, was handed over).
+    """
+    obs = geo.observed
+    P, N = geo.points[obs], geo.normals[obs]
+    if len(P) < 10:
+        return "free-form", 0.0
+    T, h = geo.T_b1_box, 0.5 * geo.extent
+    q = (P - T[:3, 3]) @ T[:3, :3]
+    inside = np.all(np.abs(q) <= h, axis=1)
+    d_box = np.where(inside, np.min(h - np.abs(q), axis=1), np.linalg.norm(np.maximum(np.abs(q) - h, 0.0), axis=1))
+    box = float(np.mean(d_box < tol))
+    cyl = 0.0
+    up = support.up
+    side = np.abs(N @ up) < 0.3
+    if side.sum() >= 30:
+        e1, e2 = _perp_basis(up)
+        xy = np.stack([P @ e1, P @ e2], axis=1)
+        fit = fit_circle(xy[side])
+        if fit is not None and CYL_RADIUS[0] <= fit[1] <= CYL_RADIUS[1]:
+            c, r = fit
+            rho = np.linalg.norm(xy - c, axis=1)
+            elev = support.elevation(P)
+            top = float(np.percentile(elev, 99.5))
+            d = np.minimum(np.abs(rho - r), np.where(rho <= r + tol, np.abs(elev - top), np.inf))
+            g = np.arange(-r, r, TOP_CELL) + 0.5 * TOP_CELL
+            X, Y = np.meshgrid(g, g)
+            disc = np.hypot(X, Y) < r - 0.007
+            at_top = xy[np.abs(elev - top) < 0.004] - c
+            cover = 0.0
+            if disc.any() and len(at_top):
+                from scipy.spatial import cKDTree
+
+                dd, _ = cKDTree(at_top).query(np.c_[X[disc], Y[disc]], k=1)
+                cover = float(np.mean(dd < 0.6 * TOP_CELL))
+            cyl = min(float(np.mean(d < tol)), cover)
+    if max(box, cyl) >= PRIMITIVE_MIN_FIT:
+        return ("box", box) if box >= cyl else ("cylinder", cyl)
+    return "free-form", max(box, cyl)
+
+
 def complete_cylinder(geo: ObjectGeometry, support: Support, bottom: float = 0.0) -> ObjectGeometry:
     """Complete an upright cylinder seen from one side (a can, a bottle, a mug's body) with its unseen arc.
 
@@ -300,15 +376,10 @@ def complete_cylinder(geo: ObjectGeometry, support: Support, bottom: float = 0.0
     e1, e2 = _perp_basis(up)
     S = geo.points[side]
     xy = np.stack([S @ e1, S @ e2], axis=1)
-    # algebraic (Kasa) circle fit: x^2 + y^2 + D x + E y + F = 0, least squares (a small linear solve;
-    # written here rather than pulled from a library: scikit-image's CircleModel is the same three lines)
-    A = np.c_[xy, np.ones(len(xy))]
-    D, E, F = np.linalg.lstsq(A, -(xy ** 2).sum(axis=1), rcond=None)[0]
-    c = -0.5 * np.array([D, E])
-    r2 = c @ c - F
-    if r2 <= 0:
+    fit = fit_circle(xy)
+    if fit is None:
         return geo
-    r = float(np.sqrt(r2))
+    c, r = fit
     rel = xy - c
     dist = np.linalg.norm(rel, axis=1)
     if not (CYL_RADIUS[0] <= r <= CYL_RADIUS[1]) or np.sqrt(np.mean((dist - r) ** 2)) > CYL_MAX_RMS * r:

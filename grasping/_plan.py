@@ -32,7 +32,8 @@ from ._gripper import GripperModel
 from ._handover import Handover, HandoverParams, handover_givers, plan_handovers
 from ._inputs import SceneCloud
 from ._joint import JointPair, joint_pairs, spread_order
-from ._objects import ObjectGeometry, Support, check_graspable, closed_geometry, estimate_support, object_geometry, unseen_space
+from ._objects import (ObjectGeometry, Support, check_graspable, closed_geometry, estimate_support, object_geometry,
+                       primitive_fit, unseen_space)
 from ._push import PushParams, push_contacts
 
 __all__ = ["PlanParams", "ObjectPlan", "GraspPlan", "plan_grasps", "plan_object"]
@@ -109,6 +110,8 @@ class ObjectPlan:
     handover: Handover or None (the best found). handover_alternatives: further hand-overs with another
     giver grasp or transfer pose (``HandoverParams.alternatives``), for the task to fall back on.
     unseen: (K, 3) points filling the space around the object no camera saw into (``PlanParams.unseen_radius``).
+    shape, shape_fit: ``"box"``, ``"cylinder"`` or ``"free-form"`` and the share of the seen points that fit the
+        primitive (``_objects.primitive_fit``): whether the cloud determines the object's shape.
     stats, timings: counts and seconds per stage.
     """
 
@@ -127,6 +130,8 @@ class ObjectPlan:
     handover_alternatives: list = field(default_factory=list)
     free_grasps: GraspSet | None = None
     unseen: np.ndarray | None = None
+    shape: str = "free-form"
+    shape_fit: float = 0.0
     mass_estimate: float = 0.0
     stats: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
@@ -168,6 +173,7 @@ def plan_object(k: int, cloud: SceneCloud, support: Support, gripper: GripperMod
     geo = object_geometry(k, cloud.points[mask], support, voxel=params.sampler.ray_radius * 0.75,
                           background=cloud.points[cloud.labels < 0])
     plan = ObjectPlan(k, geo, "single")
+    plan.shape, plan.shape_fit = primitive_fit(geo, support)
     sp = params.sampler
     max_cw = sp.max_contact_width(gripper)
     plan.problems = check_graspable(geo, max(sp.min_width, gripper.min_width + 2 * sp.min_clearance), max_cw, source,

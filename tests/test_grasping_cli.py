@@ -34,6 +34,7 @@ def test_cli_writes_grasps_json_and_png(run_dir):
     objs = {o["id"]: o for o in out["objects"]}
     small, large = objs[0], objs[1]
     assert small["mode"] == "single" and small["grasps"]
+    assert small["shape"]["kind"] == "box" and large["shape"]["kind"] == "box" and small["shape"]["fit"] >= 0.9
     ranks = [g["rank"] for g in small["grasps"]]
     assert ranks == list(range(1, len(ranks) + 1))
     assert all(a["score"] >= b["score"] for a, b in zip(small["grasps"], small["grasps"][1:]))

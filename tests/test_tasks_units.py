@@ -77,6 +77,29 @@ def test_handover_candidates_include_the_alternatives_best_first():
     with pytest.raises(InputError, match=r"objects\[2\]\.handover_alternatives\[1\]\.T_move"):
         handover_candidates(g, "grasps.json")
 
+
+def test_handover_candidates_of_determined_shapes_go_before_free_form_ones():
+    """An object whose seen points fit a box or a cylinder (grasps.json ``shape``) is handed over before a
+    higher-scoring free-form one (a mug seen from one side hides its handle from the receiver), and the
+    reason says so; without ``shape`` (an older grasps.json) the score alone decides."""
+    def ho(x, score):
+        return {"T_move": np.eye(4).tolist(), "score": score,
+                "giver": {"pick": _grasp(x), "transfer": {"T_b1_g": _grasp(x + 0.1)["T_b1_g"]}, "contact_width": 0.04},
+                "receiver": _grasp(x + 0.2)}
+
+    g = {"objects": [{"id": 1, "shape": {"kind": "free-form", "fit": 0.6}, "handover": ho(0.30, 0.9)},
+                     {"id": 2, "shape": {"kind": "cylinder", "fit": 0.97}, "handover": ho(0.25, 0.5),
+                      "handover_alternatives": [ho(0.26, 0.4)]},
+                     {"id": 3, "handover": ho(0.2, 0.45)}]}
+    cands = handover_candidates(g, "grasps.json")
+    assert [(c.object_id, c.score) for c in cands] == [(2, 0.5), (3, 0.45), (2, 0.4), (1, 0.9)]
+    mine, why = choose(cands, None, "handover", "grasps.json", [1, 2, 3])
+    assert [c.object_id for c in mine] == [2, 2]
+    assert "object 1 scores higher (0.90) but is free-form" in why and "cylinder" in why
+    g["objects"][1]["shape"]["kind"] = "free-form"
+    g["objects"][2]["shape"] = {"kind": "free-form", "fit": 0.5}
+    assert [c.object_id for c in handover_candidates(g, "grasps.json")] == [1, 2, 3, 2]
+
 def test_robot_points_around_the_bases_are_not_obstacles():
     bases = np.array([[0.0, 0.0, 0.0], [0.6, 0.0, 0.0]])
     pts = np.array([[0.05, 0.02, 0.15],   # the primary arm seen by a camera

@@ -143,9 +143,20 @@ def joint_candidates(grasps: dict, path: str) -> list[JointChoice]:
     return [out[n] for n in order]
 
 
+def free_form(o: dict) -> bool:
+    """Whether a grasps.json object's shape is free-form (``shape.kind``: its seen points fit neither a box
+    nor a cylinder); objects from a grasps.json without ``shape`` count as determined."""
+    shape = o.get("shape")
+    return isinstance(shape, dict) and shape.get("kind") == "free-form"
+
+
 def handover_candidates(grasps: dict, path: str) -> list[HandoverChoice]:
-    """Every hand-over in grasps.json (each object's ``handover`` and its ``handover_alternatives``), best
-    first."""
+    """Every hand-over in grasps.json (each object's ``handover`` and its ``handover_alternatives``): those of
+    objects whose shape the cloud determines (a box or a cylinder, grasps.json ``shape``) first, then the
+    free-form ones; best score first within each. A free-form object seen from some sides only (a mug without
+    its handle, a bunny's far side) hides what meets the receiver's fingers: on the task bench two such
+    hand-overs passed the preview on the reconstruction and failed in reality, where the scene's cylinder
+    was handed over."""
     out = []
     pre = float(grasps.get("pregrasp_distance") or 0.08)
     for o in _objects(grasps):
@@ -155,8 +166,11 @@ def handover_candidates(grasps: dict, path: str) -> list[HandoverChoice]:
                     for n, h in enumerate(o.get("handover_alternatives") or [])]
         for where, h in entries:
             if isinstance(h, dict) and h:
-                out.append(_handover_choice(oid, h, path, where, pre))
-    out.sort(key=lambda c: -c.score)
+                c = _handover_choice(oid, h, path, where, pre)
+                c.info["shape"] = (o.get("shape") or {}).get("kind", "unknown") if isinstance(o.get("shape"), dict) else "unknown"
+                c.info["free_form"] = free_form(o)
+                out.append(c)
+    out.sort(key=lambda c: (c.info["free_form"], -c.score))
     return out
 
 
@@ -198,6 +212,14 @@ def choose(cands: list, object_id: int | None, task: str, path: str, known_ids: 
     mine = [c for c in cands if c.object_id == best]
     others = sorted({c.object_id for c in cands} - {best})
     what = "two-arm grasp pair" if task == "joint-grasp" else "hand-over"
+    top = max(cands, key=lambda c: c.score)
+    if task == "handover" and top.object_id != best and top.info.get("free_form"):
+        # the best score belongs to a free-form object, passed over for one whose shape is determined
+        reason = (f"object {best} has the best-scoring {what} among the objects whose shape the cloud determines "
+                  f"(a {cands[0].info.get('shape', 'primitive')}; score {cands[0].score:.2f}); object {top.object_id} "
+                  f"scores higher ({top.score:.2f}) but is free-form: what no camera saw of it may meet the fingers"
+                  + (f"; other candidates: {', '.join(map(str, others))}" if others else "") + ")")
+        return mine, reason
     reason = (f"object {best} has the best-scoring {what} (score {cands[0].score:.2f}"
               + (f"; other candidates: {', '.join(map(str, others))}" if others else "; the only candidate") + ")")
     return mine, reason
