@@ -17,6 +17,7 @@ from ._parts import attach_parts, dissolve_slivers
 from ._patches import make_patches, patch_adjacency
 from ._summary import ObjectSummary, summarize
 from ._table import TablePlane, check_metric, fit_table, on_table_mask
+from ._tops import split_by_tops
 from ._voxels import knn_edges, median_spacing, normals_and_curvature, voxelize
 
 DEFAULT_VOXEL = 0.005
@@ -249,8 +250,9 @@ def segment(points, colors=None, normals=None, mask_ids=None, params: SegmentPar
     if _debug is not None:
         _debug["attached"] = region
     region = dissolve_slivers(region, vox.xyz, SLIVER_WIDTH, p.min_object_voxels)
+    region, split = split_by_tops(region, vox.xyz, vn, edges, p)
     T["graph"] = time.perf_counter() - t4
-    stats.update(patches=len(patches), patch_edges=int(len(pairs)), merges=merges, attached=parts)
+    stats.update(patches=len(patches), patch_edges=int(len(pairs)), merges=merges, attached=parts, split_by_tops=split)
 
     t5 = time.perf_counter()
     R = int(region.max()) + 1
