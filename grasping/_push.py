@@ -78,7 +78,6 @@ class PushParams:
         out of both grippers, while the preview on the slightly shorter estimate held it.
     """
 
-
     rolls: tuple[float, ...] = (0.0, np.pi / 2, np.pi / 4, -np.pi / 4)
     heights: tuple[float, ...] = (0.3, 0.1, 0.5, 0.7)
     tilts: tuple[float, ...] = (np.deg2rad(-15.0), 0.0, np.deg2rad(20.0), np.deg2rad(40.0), np.deg2rad(55.0),

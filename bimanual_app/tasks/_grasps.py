@@ -143,11 +143,11 @@ def joint_candidates(grasps: dict, path: str) -> list[JointChoice]:
     return [out[n] for n in order]
 
 
-def free_form(o: dict) -> bool:
-    """Whether a grasps.json object's shape is free-form (``shape.kind``: its seen points fit neither a box
-    nor a cylinder); objects from a grasps.json without ``shape`` count as determined."""
+def shape_kind(o: dict) -> str:
+    """A grasps.json object's ``shape.kind``: ``box``, ``cylinder``, ``free-form`` (its seen points fit
+    neither), or ``unknown`` for a grasps.json without ``shape`` (such objects count as determined)."""
     shape = o.get("shape")
-    return isinstance(shape, dict) and shape.get("kind") == "free-form"
+    return str(shape.get("kind", "unknown")) if isinstance(shape, dict) else "unknown"
 
 
 def handover_candidates(grasps: dict, path: str) -> list[HandoverChoice]:
@@ -167,8 +167,8 @@ def handover_candidates(grasps: dict, path: str) -> list[HandoverChoice]:
         for where, h in entries:
             if isinstance(h, dict) and h:
                 c = _handover_choice(oid, h, path, where, pre)
-                c.info["shape"] = (o.get("shape") or {}).get("kind", "unknown") if isinstance(o.get("shape"), dict) else "unknown"
-                c.info["free_form"] = free_form(o)
+                c.info["shape"] = shape_kind(o)
+                c.info["free_form"] = c.info["shape"] == "free-form"
                 out.append(c)
     out.sort(key=lambda c: (c.info["free_form"], -c.score))
     return out
