@@ -190,9 +190,14 @@ def main() -> int:
     t_all = time.perf_counter()
     jobs = [(base, seed, i, n, modes, args.fresh, tasks) for i, seed in enumerate(seeds)]
     if args.jobs > 1:  # scenes in parallel (one process each at a time); results gathered in seed order
+        import multiprocessing
         from concurrent.futures import ProcessPoolExecutor
 
-        with ProcessPoolExecutor(args.jobs) as ex:
+        # one fresh process per scene: OMPL takes its random seed once per process, so a worker that ran
+        # other scenes first would plan this one from another point of its random sequence (which scene a
+        # worker gets depends on timing: the table changed from run to run by a scene either way)
+        with ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("spawn"),
+                                 max_tasks_per_child=1) as ex:
             results = list(ex.map(run_scene, jobs))
     else:
         results = [run_scene(j) for j in jobs]

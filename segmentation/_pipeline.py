@@ -18,6 +18,7 @@ from ._patches import make_patches, patch_adjacency
 from ._summary import ObjectSummary, summarize
 from ._table import TablePlane, check_metric, fit_table, on_table_mask
 from ._tops import split_by_tops
+from ._walls import shed_neighbour_walls
 from ._voxels import knn_edges, median_spacing, normals_and_curvature, voxelize
 
 DEFAULT_VOXEL = 0.005
@@ -251,16 +252,18 @@ def segment(points, colors=None, normals=None, mask_ids=None, params: SegmentPar
         _debug["attached"] = region
     region = dissolve_slivers(region, vox.xyz, SLIVER_WIDTH, p.min_object_voxels)
     region, split = split_by_tops(region, vox.xyz, vn, edges, p)
+    # an object rises clearly above the table band (noisy clouds hold sheets of table a little above it)
+    min_top = max(p.min_object_height, table.min_height + max(0.008, 2.5 * table.sigma))
+    region, shed = shed_neighbour_walls(region, vox.xyz, vn, edges, p, min_top)
     T["graph"] = time.perf_counter() - t4
-    stats.update(patches=len(patches), patch_edges=int(len(pairs)), merges=merges, attached=parts, split_by_tops=split)
+    stats.update(patches=len(patches), patch_edges=int(len(pairs)), merges=merges, attached=parts, split_by_tops=split,
+                 walls_shed=shed)
 
     t5 = time.perf_counter()
     R = int(region.max()) + 1
     nvox = np.bincount(region, minlength=R)
     top = np.zeros(R)
     np.maximum.at(top, region, vox.xyz[:, 2])
-    # an object rises clearly above the table band (noisy clouds hold sheets of table a little above it)
-    min_top = max(p.min_object_height, table.min_height + max(0.008, 2.5 * table.sigma))
     keep = (nvox >= p.min_object_voxels) & (top >= min_top)
     keep &= _footprint_lengths(region, vox.xyz, R) >= p.min_object_size
     if bases is not None and len(bases) and p.base_radius > 0:

@@ -320,3 +320,65 @@ def test_receiver_pre_grasp_backs_off_where_its_open_fingers_are_too_near_the_ca
     assert np.linalg.norm(start - R[:3, 3]) > 0.03  # 3.5 or 5.5 cm back, not 1.5
     assert np.allclose(np.cross(start - R[:3, 3], R[:3, 2]), 0, atol=2e-3)  # on the approach line
     motion.validate_timeline(plan.timeline(), plan.opening_spans())
+
+
+def test_handover_secondary_in_the_primarys_way_turns_aside_first():
+    """The waiting secondary stands where the primary's pre-grasp is (an object beside the secondary's
+    base): the plan starts with the secondary turning about its base joint (``make-way``), and validates
+    as a whole; a secondary out of the way does not move first."""
+    from bimanual_app.planning import default_ready
+    from bimanual_app.tasks._planners import MAKE_WAY_TURNS, _pre, plan_handover
+
+    robot, motion, choice, obj, up = _handover_fixture()
+    q_p = default_ready(robot)
+    q_s = np.array([0.24, 1.923, -1.155, 0.0, 0.0, 0.0])  # leaning over the primary's way in
+    q_pre = motion.ik("primary", _pre(motion, choice.pick), q_p)[0]
+    assert not motion.valid({"primary": q_p, "secondary": q_s})  # a valid start ...
+    assert any("secondary" in w for w in motion.valid({"primary": q_pre, "secondary": q_s}))  # ... in the way
+    plan = plan_handover(motion, choice, {"primary": q_p, "secondary": q_s}, {"primary": 0.0, "secondary": 0.0},
+                         obj, up=up)
+    names = [p.name for p in plan.phases]
+    assert names[:2] == ["make-way", "reach"] and plan.info["make_way_rad"] in MAKE_WAY_TURNS
+    way = plan.phases[0].trajectories["secondary"]
+    assert way.q[-1][0] == pytest.approx(q_s[0] + plan.info["make_way_rad"])
+    assert np.allclose(way.q[-1][1:], q_s[1:])
+    motion.validate_timeline(plan.timeline(), plan.opening_spans())
+    plan = plan_handover(motion, choice, {"primary": q_p, "secondary": default_ready(robot)},
+                         {"primary": 0.0, "secondary": 0.0}, obj, up=up)
+    assert plan.phases[0].name == "reach" and "make_way_rad" not in plan.info
+
+
+def test_joint_lift_falls_back_to_the_least_lift_at_the_top_of_the_reach(monkeypatch):
+    """Where the arms cannot follow the object higher than 11 cm (both at the top of their reach: bench
+    seed 3's 47 cm carton held at its ends), the joint grasp lifts ``LIFT_MIN`` (10.5 cm: the 10 cm the
+    task needs, with 5 mm to spare) rather than fail; lower than that it fails."""
+    from bimanual_app.planning import default_ready
+    from bimanual_app.robots import load_robot
+    from bimanual_app.tasks._motion import PlanFailure, TaskMotion
+    from bimanual_app.tasks._planners import LIFT_MIN, plan_joint_grasp
+    from tests._task_fixtures import BAR, FIX_T_B1_B2, _cloud, box_surface_points, fixture_grasps
+
+    robot = load_robot("piper")
+    pts, labels = _cloud()
+    obj = box_surface_points(BAR["centre"], BAR["size"], 1500, visible_only=False)
+    choice = joint_candidates(fixture_grasps(robot), "grasps.json")[0]
+    q0 = {"primary": default_ready(robot), "secondary": default_ready(robot)}
+    w0 = {"primary": 0.0, "secondary": 0.0}
+
+    def plan_with_reach_up_to(top):
+        motion = TaskMotion(robot, FIX_T_B1_B2, pts, obj, pts[labels == 1], up=np.array([0.0, 0.0, 1.0]))
+        real = motion.cartesian
+
+        def cartesian(moves, q_now, min_duration=0.0):
+            for poses in moves.values():
+                if isinstance(poses, np.ndarray) and poses.ndim == 3 and poses[-1, 2, 3] - poses[0, 2, 3] > top:
+                    raise PlanFailure("reach", "the secondary gripper leaves its reach (test)")
+            return real(moves, q_now, min_duration=min_duration)
+
+        monkeypatch.setattr(motion, "cartesian", cartesian)
+        return plan_joint_grasp(motion, choice, q0, w0)
+
+    plan = plan_with_reach_up_to(0.11)
+    assert plan.info["object_motion"]["lift_m"] == pytest.approx(LIFT_MIN) and LIFT_MIN >= 0.105
+    with pytest.raises(PlanFailure, match="leaves its reach"):
+        plan_with_reach_up_to(0.10)

@@ -11,7 +11,8 @@ Joint grasp: reach both pre-grasps (12-DoF OMPL query) -> straight approach -> c
 waypoint for both arms on one clock, the object's own clearance checked along it -> hold 2.3 s (checked)
 -> place (the reverse) -> release -> retreat.
 
-Hand-over: primary reaches, approaches, closes on the object, lifts 6 cm, carries it (object attached)
+Hand-over: (the secondary turns aside about its base when it stands in the primary's way) primary reaches,
+approaches, closes on the object, lifts 6 cm, carries it (object attached)
 to the transfer pose -> secondary reaches its pre-grasp (object attached to the primary, as an obstacle)
 -> straight approach -> closes -> primary opens -> retreats 8 cm along its approach -> hold 2.3 s
 (checked: held by the secondary only).
@@ -28,6 +29,7 @@ from ._plan import Phase, TaskPlan
 __all__ = ["plan_joint_grasp", "plan_handover", "object_lifts", "LIFT", "HOLD_S"]
 
 LIFT = 0.15  # m the joint grasp lifts the object (>= 10 cm needed)
+LIFT_MIN = 0.105  # m: the least lift it falls back to at the top of the arms' reach
 RETREAT_UP = 0.08  # m of the fallback retreats of a push pair (straight up, or further back from the faces)
 # m: a push pair's approach stops this far out from the faces, and the squeeze starts there. The faces'
 # depth comes from the segment's points, which miss the last millimetres of an edge (on the task bench the
@@ -110,7 +112,7 @@ def object_lifts(motion: TaskMotion, up: np.ndarray, lift: float) -> list[tuple[
         off = c - (c @ u) * u  # from the line to the object, horizontally
         dist = float(np.linalg.norm(off))
         for k in (0.03, 0.06):
-            if dist > 0.01:
+            if dist > 0.01 and (k == 0.03 or dist > 0.03):  # the line nearer than 3 cm: one step, onto it
                 step = -off / dist * min(k, dist)
                 cand.append((step, f"up and {np.linalg.norm(step) * 100:.0f} cm towards the line between the bases"))
         # towards the midpoint of the bases: an object near one base is at the far end of the other's reach
@@ -119,6 +121,8 @@ def object_lifts(motion: TaskMotion, up: np.ndarray, lift: float) -> list[tuple[
         n_mid = float(np.linalg.norm(to_mid))
         if n_mid > 0.01:
             for k in (0.04, 0.08):
+                if k == 0.08 and n_mid <= 0.04:
+                    continue  # the midpoint nearer than 4 cm: one step, onto it
                 step = to_mid / n_mid * min(k, n_mid)
                 cand.append((step, f"up and {np.linalg.norm(step) * 100:.0f} cm towards the midpoint of the bases"))
     n = max(2, int(np.ceil(lift / 0.01)) + 1)
@@ -306,7 +310,9 @@ def _joint_grasp(motion, choice, q_start, width_start, lift, up, at) -> TaskPlan
     # 4. lift: the object's motion, both grippers follow it
     q, _ = plan.end_state()
     tr, err = None, None
-    for h in (lift, 0.85 * lift, max(0.74 * lift, 0.11)):  # near the top of the reach, lift less (10 cm needed)
+    # near the top of the reach, lift less: down to LIFT_MIN, 5 mm over the 10 cm needed (the bench's joint
+    # lifts rise in reality as planned, within 0.1 mm)
+    for h in (lift, 0.85 * lift, max(0.74 * lift, 0.11), LIFT_MIN):
         try:
             lifts = object_lifts(motion, up, h)
         except PlanFailure as e:
@@ -379,10 +385,17 @@ def _joint_grasp(motion, choice, q_start, width_start, lift, up, at) -> TaskPlan
     return plan
 
 
+MAKE_WAY_TURNS = (1.2, -1.2, 0.6, -0.6)  # rad about the secondary's base joint (joint 1), tried in order
+
+
 def plan_handover(motion: TaskMotion, choice: HandoverChoice, q_start: dict, width_start: dict,
                   object_points: np.ndarray, up: np.ndarray | None = None) -> TaskPlan:
     """The hand-over plan for ``choice`` from ``q_start``; raises PlanFailure (its message starts with the
     phase that could not be planned).
+
+    Where the waiting secondary is in the primary's way (its reach, approach or lift meet the secondary),
+    the plan starts with a ``make-way`` phase: the secondary turns about its base joint by the first of
+    ``MAKE_WAY_TURNS`` from which the rest plans.
 
     ``object_points``: (M,3) the object's points in b1 where it lies (attached to a gripper while carried).
     """
@@ -390,7 +403,41 @@ def plan_handover(motion: TaskMotion, choice: HandoverChoice, q_start: dict, wid
     try:
         return _handover(motion, choice, q_start, width_start, object_points, up, at)
     except PlanFailure as e:
-        raise PlanFailure(e.stage, f"{at[-1]}: {e.message}") from None
+        first = PlanFailure(e.stage, f"{at[-1]}: {e.message}")
+        if at[-1] not in ("reach", "approach", "lift") or "secondary" not in e.message:
+            raise first from None
+    # the waiting secondary is in the primary's way to the object or up from it (an object beside the
+    # secondary's base): it first turns about its base joint, out of the way, and takes the object over
+    # from there
+    w_sec = width_start["secondary"]
+    lo, hi = motion.robot.lower, motion.robot.upper
+    for turn in MAKE_WAY_TURNS:
+        q_aside = np.asarray(q_start["secondary"], dtype=np.float64).copy()
+        q_aside[0] += turn
+        if not lo[0] <= q_aside[0] <= hi[0]:
+            continue
+        q_from = {**q_start, "secondary": q_aside}
+        with motion.context("map", openings={"primary": width_start["primary"], "secondary": w_sec}):
+            if motion.valid(q_from):
+                continue
+            try:
+                way = motion.plan_free(["secondary"], q_start, [{"secondary": q_aside}])["secondary"]
+            except PlanFailure:
+                continue
+        at = ["reach"]
+        try:
+            rest = _handover(motion, choice, q_from, width_start, object_points, up, at)
+        except PlanFailure:
+            continue
+        plan = TaskPlan({a: np.asarray(q, float) for a, q in q_start.items()}, dict(width_start), info=rest.info)
+        plan.add(Phase("make-way", {"secondary": _jt(way.times, way.q, w_sec)},
+                       f"the secondary turns {np.degrees(turn):+.0f} deg about its base, out of the primary's way",
+                       "ompl"))
+        for ph in rest.phases:
+            plan.add(ph)
+        plan.info["make_way_rad"] = float(turn)
+        return plan
+    raise first from None
 
 
 def _handover(motion, choice, q_start, width_start, object_points, up, at) -> TaskPlan:
@@ -436,31 +483,34 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
     with motion.context("cut", openings={"primary": cw_g}):
         if motion.valid(q):  # the closed fingers meet points the segment left out: the object's own
             motion.cut_grasped(pick.T_b1_g, wg)
-    tr, err = None, None
-    for dist in HANDOVER_LIFTS:
-        for how, d in dirs:
-            n_steps = max(7, int(np.ceil(dist / 0.01)) + 1)
-            moves = np.stack([np.eye(4)] * n_steps)
-            moves[:, :3, 3] = np.linspace(0.0, dist, n_steps)[:, None] * d
-            try:
-                problems = motion.object_clear(moves, up=up)
-                if problems:
-                    raise PlanFailure("validation", problems[0])
-                with motion.context("cut", openings={"primary": cw_g}):
-                    tr = motion.cartesian({"primary": (pick.T_b1_g, moves[-1] @ pick.T_b1_g)}, q)["primary"]
-                # the carry is planned with the object attached, kept clear by the free-motion margin: an
-                # object lifted beside a taller neighbour still touches it, so lift higher
-                with motion.context("attached", openings={"primary": cw_g}, attach=attach):
-                    why = motion.valid({"primary": tr.q[-1], "secondary": q["secondary"]})
-                if why:
-                    tr = None
-                    raise PlanFailure("validation", f"lifted {dist * 100:.0f} cm ({how}), the carried object is "
-                                                    f"still too close to the scene: {why[0]}")
-                break
-            except PlanFailure as e:
-                err = err or e
-        if tr is not None:
-            break
+    def try_lifts(q):
+        """The first lift (in the order of HANDOVER_LIFTS x dirs) the primary can follow with the secondary
+        at q: (trajectory or None, distance, how, first error)."""
+        err = None
+        for dist in HANDOVER_LIFTS:
+            for how, d in dirs:
+                n_steps = max(7, int(np.ceil(dist / 0.01)) + 1)
+                moves = np.stack([np.eye(4)] * n_steps)
+                moves[:, :3, 3] = np.linspace(0.0, dist, n_steps)[:, None] * d
+                try:
+                    problems = motion.object_clear(moves, up=up)
+                    if problems:
+                        raise PlanFailure("validation", problems[0])
+                    with motion.context("cut", openings={"primary": cw_g}):
+                        tr = motion.cartesian({"primary": (pick.T_b1_g, moves[-1] @ pick.T_b1_g)}, q)["primary"]
+                    # the carry is planned with the object attached, kept clear by the free-motion margin: an
+                    # object lifted beside a taller neighbour still touches it, so lift higher
+                    with motion.context("attached", openings={"primary": cw_g}, attach=attach):
+                        why = motion.valid({"primary": tr.q[-1], "secondary": q["secondary"]})
+                    if why:
+                        raise PlanFailure("validation", f"lifted {dist * 100:.0f} cm ({how}), the carried object is "
+                                                        f"still too close to the scene: {why[0]}")
+                    return tr, dist, how, err
+                except PlanFailure as e:
+                    err = err or e
+        return None, 0.0, "", err
+
+    tr, dist, how, err = try_lifts(q)
     if tr is None:
         raise PlanFailure(err.stage, f"{err.message} (and {len(HANDOVER_LIFTS) * len(dirs) - 1} other lifts: "
                                      f"{', '.join(h for h, _ in dirs[1:])}; up to {max(HANDOVER_LIFTS) * 100:.0f} cm)")
