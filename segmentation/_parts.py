@@ -8,6 +8,11 @@ A region S adjacent to a bigger region N is attached to N when
     S's bottom is below N's top (S is not stacked on N), and
     S does not reach the table, or at least 90% of S lies inside N's footprint (convex hull in x-y).
 
+Among the parts that do not reach the table, thin ones (under 3 cm wide) join N when they hang off its side
+below its top (a handle) or, at least a fifth of N's size, rise above N's top from its upper part (a bunny's
+ears beside its head: split off at the concave junction, on the task bench's seed 9 the task then picked
+the body and the ears stood in the closing fingers' way).
+
 A touching neighbour that stands on the table beside N is left alone; a box stacked on N is left alone.
 Tiny regions (fewer than ``min_object_voxels``) join the neighbour with the best affinity when they rise
 above the table band, and are dropped otherwise.
@@ -22,6 +27,9 @@ from ._params import SegmentParams
 
 STACK_TOL = 0.01  # S may stand on N when its bottom is within 1 cm of N's top, or above it
 THIN = 0.03  # a part hanging off N outside its footprint must be narrower than this (a handle)
+FLOAT_RISE = 0.015  # ... or, rising above N, its lowest voxels this far above N's ...
+FLOAT_SHARE = 0.2  # ... and at least this share of N's size (a bunny's ears: 0.38 of its body; the top of a
+# can seen above a carton beside it, its lower part hidden: 0.02)
 TIGHT_MARGIN = 0.005
 HULL_MARGIN = 0.01  # "inside N's footprint": within N's x-y convex hull grown by 1 cm (N's walls, noise)
 CORE_RADIUS = 0.01  # N's footprint for that test: its core, without slivers under 2 cm wide (see core_hull) ...
@@ -172,6 +180,10 @@ def attach_parts(G: RegionGraph, patch_of_voxel: np.ndarray, xyz: np.ndarray, pa
                 elif (not reaches_table(st.bottom[S], st.top[S]) and st.width[S] < THIN
                       and st.top[S] <= st.top[N] + STACK_TOL / 2):
                     cands.append(N)  # hangs off N's side, thin, not above it (a handle)
+                elif (not reaches_table(st.bottom[S], st.top[S]) and st.width[S] < THIN
+                      and st.bottom[S] >= st.bottom[N] + FLOAT_RISE and st.top[S] > st.top[N] + STACK_TOL / 2
+                      and nS >= FLOAT_SHARE * len(big[N])):
+                    cands.append(N)  # thin, held up beside N's upper part, rising above it (a bunny's ears)
             if cands:
                 G.merge(S, max(cands, key=lambda n: G.affinity(S, n)))
                 merges += 1

@@ -181,16 +181,21 @@ def fit_table(points: np.ndarray, params: SegmentParams, source: str = "points",
     # The table's noise: RANSAC's window truncates it, so measure it on all sample points near the plane
     # (median absolute deviation: the objects' lowest points are few), then refit on a window of
     # 2.5 sigma when that is wider (clouds of misaligned views hold several layers of table).
+    # Iterated to a fixed point (the same window twice): Open3D's RANSAC runs in parallel threads and its
+    # plane differs a little from run to run despite the seed; the fixed point does not, so the same cloud
+    # gives the same segments.
     sigma = 0.0
-    for _ in range(2):
+    prev = None
+    for _ in range(8):
         r = sample @ n + d
         near = np.abs(r) < max(3 * thr, 0.03)
         if near.sum() < 3:
             break
         sigma = float(1.4826 * np.median(np.abs(r[near] - np.median(r[near]))))
         sel = np.abs(r) < max(thr, 2.5 * sigma)
-        if sel.sum() < 3:
+        if sel.sum() < 3 or (prev is not None and np.array_equal(sel, prev)):
             break
+        prev = sel
         inliers = sample[sel]
         n, d = _refine(inliers)
     if abs(n[2]) > 0.5:

@@ -11,8 +11,11 @@ For each region with a flat top (:func:`._tops._plateaus`, the largest, with its
 that is the region's top (at most ``MAX_ABOVE`` of its voxels rise ``ABOVE`` it: not a cup's inside bottom)
 and covers at least ``MIN_TOP_SHARE`` of the region's own footprint (a box, a can: not a duck): its voxels
 more than ``MARGIN`` outside the top's footprint, or rising above the top, that lie within
-``NEAR`` of the footprint of an adjacent object region (one sharing a voxel edge with them), in connected
-pieces that touch that region, go to it; at most ``MAX_SHED`` of the region.
+``NEAR`` of the footprint of an adjacent, larger object region (one sharing a voxel edge with them), in
+connected pieces that touch that region, go to it; at most ``MAX_SHED`` of the region. Only small regions
+(the top at most ``MAX_TOP`` long) give: on the noisy clouds of the segmentation bench a carton's region,
+its top seen in part, gave its own sides to a small box beside it, and a torus (its crown a ring-shaped
+top) its outer slope to a fragment.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ MARGIN = 0.008  # m outside the top's footprint (a box's own sides stand within 
 NEAR = 0.004  # m: within (or this near) the neighbour's footprint
 MIN_TOP_SHARE = 0.5  # the top's footprint area over the region's
 MAX_SHED = 0.4  # share of the region's voxels it may give away
+MAX_TOP = 0.09  # m: the top's longer side at most (a small box, a can: what one gripper takes)
 ABOVE = 2 * STEP  # m: a voxel this far above the top rises above it (a box's sides do not)
 MAX_ABOVE = 0.25  # share of the region's voxels that may rise above its top (else the plateau is not its top)
 TOP_EDGE = 0.012  # m: the top's edge voxels lie this near the plateau ...
@@ -49,6 +53,7 @@ def shed_neighbour_walls(region: np.ndarray, xyz: np.ndarray, normals: np.ndarra
     object when its highest voxel is at least this high (and it has ``params.min_object_voxels``). Returns
     the new (V,) ids and the number of voxels moved.
     """
+    import cv2
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -91,6 +96,9 @@ def shed_neighbour_walls(region: np.ndarray, xyz: np.ndarray, normals: np.ndarra
         top_hull = _hull(xyz[idx[near_top], :2])
         if _area(top_hull) < MIN_TOP_SHARE * max(_area(hull_of(r)), 1e-12):
             continue
+        (_, _), (w, l), _ = cv2.minAreaRect(top_hull.astype(np.float32))
+        if max(w, l) > MAX_TOP:
+            continue  # a carton's region: its sides beyond a partly seen top are its own
         d_top = _hull_distance(top_hull, xyz[idx, :2])
         outside = idx[(d_top > MARGIN) | (z > h + ABOVE)]
         if not len(outside):
@@ -99,7 +107,7 @@ def shed_neighbour_walls(region: np.ndarray, xyz: np.ndarray, normals: np.ndarra
         mine = np.zeros(len(region), bool)
         mine[idx] = True
         nb = np.unique(np.concatenate([region[cb[mine[ca]]], region[ca[mine[cb]]]]))
-        nb = [int(n) for n in nb if n != r and is_obj[n]]
+        nb = [int(n) for n in nb if n != r and is_obj[n] and nvox[n] > len(idx)]  # larger neighbours only
         if not nb:
             continue
         d = np.stack([_hull_distance(hull_of(n), xyz[outside, :2]) for n in nb], axis=1)  # (k, N)
