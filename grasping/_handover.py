@@ -76,6 +76,11 @@ class HandoverParams:
     release_clearance: the giver lets go at the transfer pose opening this far past the object on each side
         (no wider than it picked: a pick may open wider, for the object's position error on the table); its
         retreat sweep is checked at that opening.
+    shallow_depths: when no hand-over is found, the giver may also hold the object shallow: pick grasps
+        sampled again for the primary with their contact centres at most these fractions of the finger length
+        behind the fingertips (the picks go as deep as the fingers fit, and cover a small object where the
+        receiver's fingers would go; on the task bench's seed 16 no pick of the mug left the secondary a grasp
+        it reached, a shallower hold did); empty: only the picks.
     alternatives: hand-overs kept per object (:func:`plan_handovers`): the best first, then ones with another
         giver grasp or transfer pose, for the task to fall back on when one cannot be planned or previewed.
     b2b_sigma_m, b2b_sigma_rad: 1-sigma error of the calibrated ``T_b1_b2`` (translation per axis, rotation)
@@ -109,6 +114,7 @@ class HandoverParams:
     b2b_sigma_rad: float = 0.012
     alternatives: int = 3
     release_clearance: float = 0.010
+    shallow_depths: tuple[float, ...] = (0.4, 0.25)
 
 
 @dataclass

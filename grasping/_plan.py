@@ -128,6 +128,7 @@ class ObjectPlan:
     joint: list = field(default_factory=list)
     handover: Handover | None = None
     handover_alternatives: list = field(default_factory=list)
+    giver_picks: GraspSet | None = None  # the grasps ``handover.givers.index`` points into: grasps (then shallow holds)
     free_grasps: GraspSet | None = None
     unseen: np.ndarray | None = None
     shape: str = "free-form"
@@ -215,7 +216,7 @@ def plan_object(k: int, cloud: SceneCloud, support: Support, gripper: GripperMod
             plan.timings["joint"] = time.perf_counter() - t1
         if plan.mode == "single" and params.handover and len(plan.reach.get("primary", [])):
             t1 = time.perf_counter()
-            _handover(plan, support, gripper, collider, arms, check, params, cloud.points[~mask])
+            _handover(plan, support, gripper, collider, arms, check, params, cloud.points[~mask], blocked)
             plan.timings["handover"] = time.perf_counter() - t1
     elif arms:
         plan.notes.append("secondary arm unknown (no T_b1_b2): no joint grasps or hand-over")
@@ -379,7 +380,8 @@ def _joint_pairs(plan: ObjectPlan, support: Support, collider: GripperCollider, 
 
 
 def _handover(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: GripperCollider,
-              arms: dict[str, Arm], check: TwoArmCheck | None, params: PlanParams, obstacles_b1: np.ndarray) -> None:
+              arms: dict[str, Arm], check: TwoArmCheck | None, params: PlanParams, obstacles_b1: np.ndarray,
+              blocked: SceneOctree) -> None:
     """A hand-over: receiver grasps sampled on the object in the air (its bottom closed, from every side)."""
     closed = closed_geometry(plan.geometry, support)
     # every collision-free candidate, not only the best-scored: those cluster at the object's centre, where
@@ -394,16 +396,51 @@ def _handover(plan: ObjectPlan, support: Support, gripper: GripperModel, collide
     plan.free_grasps, _ = sample_grasps(closed, support, gripper, collider, SceneOctree(unseen, params.octree_resolution),
                                         free_params)
     # the giver holds the object where it leaves the receiver room, not where a single-arm pick is best
-    givers, clear = handover_givers(plan.grasps, plan.free_grasps, plan.reach["primary"], arms["primary"], collider,
-                                    params.handover_params)
-    found, plan.stats["handover"] = plan_handovers(plan.geometry, support, givers, plan.free_grasps, arms, collider,
-                                                   check, params.handover_params, clear, obstacles_b1, closed.points)
+    plan.giver_picks = plan.grasps
+    found = _search_handovers(plan, support, collider, arms, check, params, obstacles_b1, closed)
+    if not found and params.handover_params.shallow_depths:
+        # none: the picks go as deep as the fingers fit, and a small object held so may be covered where the
+        # receiver's fingers would go. Search again with shallow holds as the givers (the same sampler at the
+        # shallow depths only, with the primary's approach hints: the giver is the primary). Only then: on
+        # the task bench, offered alongside the picks, shallow holds displaced deep ones that had worked
+        # (seed 3's can).
+        reach = arms["primary"].reach
+        hints = reach.approach_hints(plan.geometry.centre) if hasattr(reach, "approach_hints") else None
+        shallow, _ = sample_grasps(plan.geometry, support, gripper, collider, blocked,
+                                   replace(params.sampler, depths=params.handover_params.shallow_depths),
+                                   approach_hints=hints)
+        if len(shallow):
+            plan.giver_picks = shallow
+            found = _search_handovers(plan, support, collider, arms, check, params, obstacles_b1, closed,
+                                      reached=False)
+            plan.stats["handover"]["shallow_picks"] = len(shallow)
+            # giver_picks: the picks, then the shallow holds; the givers' indices point into it (a giver's
+            # index is never taken for a pick's: grasps.json's giver.grasp_rank stays null)
+            plan.giver_picks = GraspSet.concat([plan.grasps, shallow])
+            for givers in {id(h.givers): h.givers for h in found}.values():
+                givers.index = givers.index + len(plan.grasps)
     plan.handover = found[0] if found else None
     plan.handover_alternatives = found[1:]
-    plan.stats["handover"]["givers"] = {"reachable": len(givers), "tried": givers.tried, "why_not": givers.reasons}
     if plan.handover is None:
         plan.notes.append("no hand-over found: no transfer pose where the primary holds it and the secondary"
                           " reaches a grasp clear of the primary's fingers")
+
+
+def _search_handovers(plan: ObjectPlan, support: Support, collider: GripperCollider, arms: dict[str, Arm],
+                      check: TwoArmCheck | None, params: PlanParams, obstacles_b1: np.ndarray, closed,
+                      reached: bool = True) -> list:
+    """Hand-overs with givers chosen among ``plan.giver_picks`` (``handover_givers``, ``plan_handovers``);
+    ``reached``: those are ``plan.grasps``, whose reachable ones ``plan.reach["primary"]`` holds already.
+    Sets ``plan.stats["handover"]``."""
+    ag = plan.reach["primary"]
+    known = ag if reached else ArmGrasps(ag.arm, ag.grasps.take([]), np.zeros(0, int), ag.q[:0], ag.q_pre[:0],
+                                         ag.T_b_g[:0])
+    givers, clear = handover_givers(plan.giver_picks, plan.free_grasps, known, arms["primary"],
+                                    collider, params.handover_params)
+    found, plan.stats["handover"] = plan_handovers(plan.geometry, support, givers, plan.free_grasps, arms, collider,
+                                                   check, params.handover_params, clear, obstacles_b1, closed.points)
+    plan.stats["handover"]["givers"] = {"reachable": len(givers), "tried": givers.tried, "why_not": givers.reasons}
+    return found
 
 
 def plan_grasps(cloud: SceneCloud, gripper: GripperModel | None = None, arms: dict[str, Arm] | None = None,

@@ -1,5 +1,7 @@
 """Two-arm joint grasps (balanced, opposite sides, grippers apart) and hand-overs (fingers apart)."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -128,22 +130,76 @@ def test_handover_giver_leaves_the_receiver_room():
     col = GripperCollider(load_gripper())
     gap = plan.params.handover_params.gap
     # the giver lets go opening its release width (it may have picked wider)
-    w_rel = release_width(op.grasps.width, op.grasps.contact_width, plan.params.handover_params)
-    assert np.all(w_rel <= op.grasps.width + 1e-12)
-    n = np.array([len(_clear_receivers(col, op.grasps.T_b1_g[i], w_rel[i], op.grasps.contact_width[i],
-                                       op.free_grasps, gap)) for i in range(len(op.grasps))])
+    picks = op.giver_picks  # the picks, then the shallow holds sampled for the giver
+    assert len(picks) >= len(op.grasps) and np.allclose(picks.T_b1_g[: len(op.grasps)], op.grasps.T_b1_g)
+    w_rel = release_width(picks.width, picks.contact_width, plan.params.handover_params)
+    assert np.all(w_rel <= picks.width + 1e-12)
+    n = np.array([len(_clear_receivers(col, picks.T_b1_g[i], w_rel[i], picks.contact_width[i],
+                                       op.free_grasps, gap)) for i in range(len(picks))])
     givers = op.handover.givers
     assert len(givers) and np.all(n[givers.index] > 0)
     cap = plan.params.handover_params.enough_clear
     assert min(n[givers.index[0]], cap) == min(n.max(), cap)
     assert op.handover.tried["clear_receivers"] > 0
     # the receiver's grasp is one of those the giver leaves clear
-    assert op.handover.receiver["index"] in _clear_receivers(col, op.grasps.T_b1_g[givers.index[op.handover.giver_index]],
-                                                             w_rel[givers.index[op.handover.giver_index]],
-                                                             op.grasps.contact_width[givers.index[op.handover.giver_index]],
+    gi = givers.index[op.handover.giver_index]
+    assert op.handover.receiver["index"] in _clear_receivers(col, picks.T_b1_g[gi], w_rel[gi], picks.contact_width[gi],
                                                              op.free_grasps, gap)
     # and the object rises at least min_rise above where it lay
     assert op.handover.centre[2] - op.geometry.centre[2] >= plan.params.handover_params.min_rise - 1e-6
+
+
+def test_handover_giver_may_hold_the_object_shallow(monkeypatch):
+    """The picks go as deep as the fingers fit. Held shallower (the same sampler at ``shallow_depths`` of the
+    finger length), a can leaves the receiver more grasps clear of the giver's fingers; when the picks give
+    no hand-over, the search is run again with those shallow holds among the givers."""
+    import grasping._plan as gplan
+    from grasping import HandoverParams, SceneOctree, estimate_support, sample_grasps
+    from grasping._handover import _clear_receivers, release_width
+
+    P, L = make_cloud([Obj("cylinder", (0.3, 0.2), (0.05, 0.05, 0.10))])
+    hp = HandoverParams()
+    params = PlanParams(retry_factor=1)
+    plan = plan_grasps(scene_cloud(P, L), arms=accept_all_arms(T12), T_b1_b2=T12, params=params)
+    op = plan.objects[0]
+    assert op.handover is not None and len(op.giver_picks) == len(op.grasps)  # found with the picks alone
+    flen = load_gripper().finger_length
+    shallow, _ = sample_grasps(op.geometry, estimate_support(P, L), load_gripper(), GripperCollider(load_gripper()),
+                               SceneOctree(P[L < 0], params.octree_resolution),
+                               replace(params.sampler, depths=hp.shallow_depths))
+    assert len(shallow) and np.all(shallow.depth <= max(hp.shallow_depths) * flen + 1e-9)
+    assert op.grasps.depth.max() > max(hp.shallow_depths) * flen  # the picks: deeper where they fit
+    col = GripperCollider(load_gripper())
+
+    def clear_from_above(gs):
+        w_rel = release_width(gs.width, gs.contact_width, hp)
+        return max(len(_clear_receivers(col, gs.T_b1_g[i], w_rel[i], gs.contact_width[i], op.free_grasps, hp.gap))
+                   for i in np.flatnonzero(gs.T_b1_g[:, 2, 2] < -0.9))  # held from above
+
+    assert clear_from_above(shallow) > clear_from_above(op.grasps)
+
+    # where the picks give no hand-over (here: the first search is made to find none), the search runs again
+    # with the shallow holds as the givers
+    real, calls = gplan.plan_handovers, []
+
+    def none_first(geo, support, givers, *args, **kw):
+        found, stats = real(geo, support, givers, *args, **kw)
+        calls.append(givers.grasps.depth.copy())
+        return (found if len(calls) > 1 else []), stats
+
+    monkeypatch.setattr(gplan, "plan_handovers", none_first)
+    plan2 = plan_grasps(scene_cloud(P, L), arms=accept_all_arms(T12), T_b1_b2=T12, params=params)
+    op2 = plan2.objects[0]
+    n_shallow = op2.stats["handover"]["shallow_picks"]
+    assert len(calls) == 2 and n_shallow > 0 and len(op2.giver_picks) == len(op2.grasps) + n_shallow
+    assert np.all(calls[1] <= max(hp.shallow_depths) * flen + 1e-9)  # the givers of the second search: shallow
+    h = op2.handover
+    assert h is not None and h.givers.grasps.depth[h.giver_index] <= max(hp.shallow_depths) * flen + 1e-9
+    gi = h.givers.index[h.giver_index]  # points past the picks, at the shallow hold it is
+    assert gi >= len(op2.grasps) and np.allclose(op2.giver_picks.T_b1_g[gi][:3, 3], h.givers.grasps.T_b1_g[h.giver_index][:3, 3])
+    from grasping import plan_to_dict
+
+    assert plan_to_dict(plan2)["objects"][0]["handover"]["giver"]["grasp_rank"] is None  # not one of the picks
 
 
 def test_handover_transfer_pose_keeps_the_object_clear_of_the_scene():

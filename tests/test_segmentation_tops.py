@@ -50,3 +50,27 @@ def test_a_cup_and_two_equal_boxes_are_not_split():
     b = box_points((0.3 + 0.061, 0.0), (0.06, 0.06, 0.075), step=0.0025)  # 5 mm taller, flush against it
     region, xyz, nrm, edges, _ = _region(a, b)
     assert split_by_tops(region, xyz, nrm, edges, SegmentParams())[1] == 0
+
+
+def test_a_can_as_tall_as_the_carton_it_stands_against_is_cut_off_its_top():
+    """Tops 3 mm apart make one plateau; the can's disc bulges out of the carton's rectangle, joined along
+    the chord where it touches the carton's side (task bench, seed 16), and is cut off there."""
+    carton = box_points((0.3, 0.0), (0.19, 0.37, 0.128), step=0.0025)
+    can = cylinder_points((0.3 + 0.095 + 0.0265, 0.1), 0.053, 0.131, step=0.0025)  # against the +x face
+    can = can[can[:, 0] > 0.3 + 0.095 + 0.002]  # the half facing the carton is hidden
+    carton = carton[~((carton[:, 0] > 0.395 - 0.001) & (np.abs(carton[:, 1] - 0.1) < 0.02))]
+    region, xyz, nrm, edges, truth = _region(carton, can)
+    out, n = split_by_tops(region, xyz, nrm, edges, SegmentParams())
+    assert n == 1
+    for k in (0, 1):
+        ids, cnt = np.unique(out[truth == k], return_counts=True)
+        assert cnt.max() >= 0.95 * cnt.sum()
+    assert np.bincount(out[truth == 0]).argmax() != np.bincount(out[truth == 1]).argmax()
+
+
+def test_a_carton_with_a_corner_missing_from_its_top_is_not_split():
+    """One concave corner (a corner of the top no camera saw) is no second object."""
+    carton = box_points((0.3, 0.0), (0.19, 0.37, 0.128), step=0.0025)
+    bite = (carton[:, 0] > 0.3 + 0.095 - 0.04) & (carton[:, 1] > 0.185 - 0.05) & (carton[:, 2] > 0.128 - 0.001)
+    region, xyz, nrm, edges, _ = _region(carton[~bite])
+    assert split_by_tops(region, xyz, nrm, edges, SegmentParams())[1] == 0
