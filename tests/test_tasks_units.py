@@ -322,6 +322,55 @@ def test_receiver_pre_grasp_backs_off_where_its_open_fingers_are_too_near_the_ca
     motion.validate_timeline(plan.timeline(), plan.opening_spans())
 
 
+def test_handover_carry_keeps_less_margin_where_the_arm_cannot_lift_the_object_clear(monkeypatch):
+    """At the top of its reach the primary lifts the object 6 cm straight up and no higher (bench seed 8: a can
+    49 cm out, beside a small box and the carton); there it is still within the carry's free-motion margin of
+    its neighbour. As the last resort the carry keeps the object about half that margin less from the scene
+    (the receiver's last resort too) rather than fail; the plan validates as a whole. Lifted clear, the carry
+    keeps the whole margin."""
+    from bimanual_app.planning import default_ready
+    from bimanual_app.robots import load_robot
+    from bimanual_app.tasks._motion import OBJECT_PADDING, PlanFailure, TaskMotion
+    from bimanual_app.tasks._planners import plan_handover
+    from tests._task_fixtures import FIX_T_B1_B2, SMALL_BOX, _cloud, box_surface_points, fixture_grasps
+
+    robot = load_robot("piper")
+    pts, labels = _cloud()
+    # a box as tall as the small box, 1.7 cm off its +x face (beyond the 1.5 cm the grasp cuts from the map)
+    beside = box_surface_points([0.357, -0.16, 0.05], [0.04, 0.04, 0.10], 1500, seed=9)
+    pts = np.vstack([pts, beside])
+    labels = np.r_[labels, np.full(len(beside), 2)].astype(np.int32)
+    obj = box_surface_points(SMALL_BOX["centre"], SMALL_BOX["size"], 1500, visible_only=False)
+    up = np.array([0.0, 0.0, 1.0])
+    choice = handover_candidates(fixture_grasps(robot), "grasps.json")[0]
+    q0 = {"primary": default_ready(robot), "secondary": default_ready(robot)}
+    w0 = {"primary": 0.0, "secondary": 0.0}
+
+    def plan_with_lifts_up_to(top):
+        # a free-motion margin of 2 cm: the neighbour 1.7 cm away is within it
+        motion = TaskMotion(robot, FIX_T_B1_B2, pts, obj, pts[labels == 0], up=up, margin=0.02)
+        real = motion.cartesian
+
+        def cartesian(moves, q_now, min_duration=0.0):
+            for m in moves.values():  # the lift: no higher than ``top``, straight up only
+                T0, T1 = (m[0], m[-1]) if isinstance(m, np.ndarray) else m
+                d = T1[:3, 3] - T0[:3, 3]
+                if d[2] > 0.02 and (d[2] > top or np.linalg.norm(d[:2]) > 0.005):
+                    raise PlanFailure("reach", "the primary gripper leaves its reach (test)")
+            return real(moves, q_now, min_duration=min_duration)
+
+        monkeypatch.setattr(motion, "cartesian", cartesian)
+        return motion, plan_handover(motion, choice, q0, w0, obj, up=up)
+
+    motion, plan = plan_with_lifts_up_to(0.065)
+    lift = next(p for p in plan.phases if p.name == "lift")
+    assert "6 cm (straight up)" in lift.note
+    assert plan.info["carry_padding_m"] < OBJECT_PADDING - 0.005
+    motion.validate_timeline(plan.timeline(), plan.opening_spans())
+    _, plan = plan_with_lifts_up_to(0.2)  # 14 cm up it is clear of the neighbour
+    assert "14 cm" in next(p for p in plan.phases if p.name == "lift").note and "carry_padding_m" not in plan.info
+
+
 def test_handover_secondary_in_the_primarys_way_turns_aside_first():
     """The waiting secondary stands where the primary's pre-grasp is (an object beside the secondary's
     base): the plan starts with the secondary turning about its base joint (``make-way``), and validates

@@ -483,9 +483,9 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
     with motion.context("cut", openings={"primary": cw_g}):
         if motion.valid(q):  # the closed fingers meet points the segment left out: the object's own
             motion.cut_grasped(pick.T_b1_g, wg)
-    def try_lifts(q):
+    def try_lifts(q, pad=OBJECT_PADDING):
         """The first lift (in the order of HANDOVER_LIFTS x dirs) the primary can follow with the secondary
-        at q: (trajectory or None, distance, how, first error)."""
+        at q, the carried object's box grown by ``pad``: (trajectory or None, distance, how, first error)."""
         err = None
         for dist in HANDOVER_LIFTS:
             for how, d in dirs:
@@ -500,7 +500,7 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
                         tr = motion.cartesian({"primary": (pick.T_b1_g, moves[-1] @ pick.T_b1_g)}, q)["primary"]
                     # the carry is planned with the object attached, kept clear by the free-motion margin: an
                     # object lifted beside a taller neighbour still touches it, so lift higher
-                    with motion.context("attached", openings={"primary": cw_g}, attach=attach):
+                    with motion.context("attached", openings={"primary": cw_g}, attach=attach, object_padding=pad):
                         why = motion.valid({"primary": tr.q[-1], "secondary": q["secondary"]})
                     if why:
                         raise PlanFailure("validation", f"lifted {dist * 100:.0f} cm ({how}), the carried object is "
@@ -511,6 +511,16 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
         return None, 0.0, "", err
 
     tr, dist, how, err = try_lifts(q)
+    carry_pad = OBJECT_PADDING
+    if tr is None:
+        # at the top of its reach the arm lifts the object no higher than where it is still within the carry's
+        # margin of a neighbour: as the last resort, the carry keeps the object about half the free-motion
+        # margin less from the scene (the receiver's last resort too; on the task bench a can 49 cm out rose
+        # 6 cm, 1.6 cm over the small box beside it)
+        carry_pad = OBJECT_PADDING - 0.5 * (motion.world.margin - CONTACT_MARGIN) - 0.002
+        tr, dist, how, _ = try_lifts(q, carry_pad)
+        if tr is not None:
+            plan.info["carry_padding_m"] = carry_pad
     if tr is None:
         raise PlanFailure(err.stage, f"{err.message} (and {len(HANDOVER_LIFTS) * len(dirs) - 1} other lifts: "
                                      f"{', '.join(h for h, _ in dirs[1:])}; up to {max(HANDOVER_LIFTS) * 100:.0f} cm)")
@@ -520,13 +530,15 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
     q, _ = plan.end_state()
     w0 = width_start["secondary"]
     pre_rec = _pre(motion, rec)
-    with motion.context("attached", openings={"primary": cw_g, "secondary": w0}, attach=attach):
+    with motion.context("attached", openings={"primary": cw_g, "secondary": w0}, attach=attach,
+                        object_padding=carry_pad):
         sols = _goal_ik(motion, "primary", gt.T_b1_g, [gt.q, q["primary"]])
         if all(any("secondary" in w for w in motion.valid({**q, "primary": s_})) for s_ in sols[:4]):
             # the transfer pose brings the object against the waiting secondary: it goes to its pre-grasp
             # in the same motion (out of the way, to where it takes the object over)
             # (opening on the way: checked at the wider of its two openings)
-            with motion.context("attached", openings={"primary": cw_g, "secondary": max(w0, wr)}, attach=attach):
+            with motion.context("attached", openings={"primary": cw_g, "secondary": max(w0, wr)}, attach=attach,
+                                object_padding=carry_pad):
                 sols_r = _goal_ik(motion, "secondary", pre_rec, [rec.q_pre, q_start["secondary"], rec.q])
                 goals = [{"primary": s1, "secondary": s2} for s1 in sols[:3] for s2 in sols_r[:3]]
                 goals = [g_ for g_ in goals if not motion.valid(g_)] or goals[:1]
