@@ -23,6 +23,7 @@ COMMANDS: dict[str, str] = {
     "task": "bimanual_app.tasks.cli",
     "capture": "bimanual_app.hardware.capture_cli",
     "run": "bimanual_app.app.run_cli",
+    "view": "bimanual_app.viewer.cli",
 }
 
 
@@ -42,6 +43,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="bijcr",
         description="Bi-JCR: marker-free calibration of two robot arms with wrist cameras, and bimanual tasks.",
+        epilog="Every command checks its output path (a folder it can write) before it reads or computes anything. "
+               "Bad input is one line per problem: the file or option, what is wrong, and the fix. Exit codes: 0 "
+               "done; 1 bad input, or a result that failed (e.g. a task whose preview failed); 2 bad arguments; "
+               "130 interrupted (Ctrl-C).",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, mod in _available().items():
@@ -62,6 +67,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args._run(args) or 0)
     except InputError as e:
+        if len(e.problems) == 1:  # one line: the file, the field, what is wrong and the fix
+            print(f"bijcr {args.command}: {e.problems[0]}", file=sys.stderr)
+            return 1
         print(f"bijcr {args.command}: input problem(s):", file=sys.stderr)
         for p in e.problems:
             print(f"  - {p}", file=sys.stderr)

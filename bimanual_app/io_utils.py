@@ -12,7 +12,8 @@ from typing import IO, Iterator
 
 import numpy as np
 
-__all__ = ["Problem", "InputError", "atomic_path", "atomic_open", "write_json", "to_jsonable"]
+__all__ = ["Problem", "InputError", "atomic_path", "atomic_open", "write_json", "to_jsonable", "check_output_dir",
+           "check_output_file"]
 
 
 @dataclass(frozen=True)
@@ -41,6 +42,53 @@ class InputError(ValueError):
             problems = [problems]
         self.problems = list(problems)
         super().__init__("\n".join(str(p) for p in self.problems))
+
+
+def _writable_folder(folder: Path, path: Path, option: str, fix: str) -> None:
+    """Raise InputError unless a file can be created in ``folder`` (tried: a temporary file, removed)."""
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as e:
+        raise InputError(Problem(str(path), option, f"cannot be written: creating a file in {folder} fails "
+                                 f"({e.strerror or e})", fix)) from None
+
+
+def _existing_parent(path: Path, option: str, fix: str) -> Path:
+    """The nearest folder above ``path`` that exists; InputError when a file stands in the way."""
+    parent = path.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise InputError(Problem(str(path), option, f"{parent} is a file, not a folder", fix))
+    return parent
+
+
+def check_output_dir(path: str | os.PathLike, option: str = "--out",
+                     fix: str = "give a new folder, or one you can write to") -> Path:
+    """Check, before any work, that ``path`` is (or can become) a folder this process can write into.
+
+    Creates nothing. Raises InputError naming the path, the option and a fix when it is a file, lies under
+    a file, or cannot be written (a read-only or virtual file system, no permission). Returns the Path.
+    """
+    path = Path(path)
+    if path.exists():
+        if not path.is_dir():
+            raise InputError(Problem(str(path), option, "exists and is not a folder", fix))
+        _writable_folder(path, path, option, fix)
+    else:
+        _writable_folder(_existing_parent(path, option, fix), path, option, fix)
+    return path
+
+
+def check_output_file(path: str | os.PathLike, option: str = "--out",
+                      fix: str = "give a file path in a folder you can write to") -> Path:
+    """As :func:`check_output_dir` for a file to be (re)written: not a folder, its folder writable."""
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(Problem(str(path), option, "is a folder, not a file", fix))
+    _writable_folder(_existing_parent(path, option, fix), path, option, fix)
+    return path
 
 
 @contextlib.contextmanager

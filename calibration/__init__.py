@@ -9,6 +9,8 @@ Public API:
     scene_cloud(scene, result, conf_threshold=None) -> (points_b1, colors, info)
     metric_cloud(pts3d, T_b1_w, scale, conf=None, colors=None, conf_threshold=None) -> (points, colors, info)
     write_outputs(out_dir, scene, result) -> {name: Path}   (calibration.json, scene_b1.ply, calibration.png, ros/)
+    calibrate_stage(scene_dir, out_dir, method, options) -> CalibrationStage  (the stage of bijcr calibrate / run)
+    analyse_capture({arm: T_b_e (N, 4, 4)}) -> [Finding]   the view-count / degeneracy checks (also bijcr check)
     CalibrationOptions, CalibrationResult, DegenerateCaptureError, METHODS, DEFAULT_METHOD
 CLI: ``bijcr calibrate SCENE --out DIR [--method absolute|paper|paper-norefine]`` (calibration.cli).
 """
@@ -21,6 +23,7 @@ import importlib
 # ``bijcr --help`` does not pull in numpy/scipy.
 _EXPORTS = {
     "calibrate": "_api", "scene_cloud": "_api", "write_outputs": "_api",
+    "calibrate_stage": "_stage", "CalibrationStage": "_stage", "analyse_capture": "_degeneracy",
     "metric_cloud": "_cloud",
     "solve_bijcr": "_solve", "solve_single_arm": "_solve", "CalibrationOptions": "_solve",
     "CalibrationResult": "_solve", "DegenerateCaptureError": "_solve", "METHODS": "_solve", "DEFAULT_METHOD": "_solve",

@@ -189,11 +189,18 @@ def jacobian(T_b_e: list, T_w_c: list, base: AbsoluteState, sigma: tuple[float, 
     return np.concatenate(blocks)
 
 
+NULL_RTOL = 1e-12  # relative eigenvalue below which a direction of the normal matrix is undetermined
+NULL_COMPONENT = 1e-3  # a parameter moves along an undetermined direction when its component exceeds this
+
+
 def covariance(T_b_e: list, T_w_c: list, st: AbsoluteState, sigma: tuple[float, float]) -> tuple[np.ndarray, float, float]:
     """Linearised covariance (12 K + 1, 12 K + 1) of the local coordinates at ``st``.
 
-    ``cov = (J^T J)^-1 * chi2 / dof`` (a-posteriori variance factor). Returns ``(cov, condition number of
-    J^T J after column scaling, variance factor)``.
+    ``cov = (J^T J)^-1 * chi2 / dof`` (a-posteriori variance factor). Directions of the (column-scaled)
+    normal matrix whose eigenvalue is below ``NULL_RTOL`` times the largest are not determined by the data
+    (e.g. the camera offset along the only rotation axis): every parameter that moves along one gets an
+    infinite variance (``inf`` on the diagonal, its off-diagonal terms 0), never the pseudo-inverse's
+    small number. Returns ``(cov, condition number of J^T J after column scaling, variance factor)``.
     """
     J = jacobian(T_b_e, T_w_c, st, sigma)
     r = whitened(T_b_e, T_w_c, st, sigma)
@@ -201,10 +208,15 @@ def covariance(T_b_e: list, T_w_c: list, st: AbsoluteState, sigma: tuple[float, 
     vf = float(r @ r) / (m - n) if m > n else 1.0
     H = J.T @ J
     d = np.sqrt(np.maximum(np.diag(H), 1e-300))
-    Hn = H / d[:, None] / d[None, :]
-    ev = np.linalg.eigvalsh(Hn)
+    ev, V = np.linalg.eigh(H / d[:, None] / d[None, :])
     cond = float(ev[-1] / max(ev[0], 1e-300))
-    cov = np.linalg.pinv(Hn) / d[:, None] / d[None, :] * vf
+    null = ev < NULL_RTOL * ev[-1]
+    inv = np.where(null, 0.0, 1.0 / np.where(null, 1.0, ev))
+    cov = (V * inv) @ V.T / d[:, None] / d[None, :] * vf
+    free = np.any(np.abs(V[:, null]) > NULL_COMPONENT, axis=1)
+    cov[free, :] = 0.0
+    cov[:, free] = 0.0
+    cov[free, free] = np.inf
     return cov, cond, vf
 
 

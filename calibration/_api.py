@@ -84,15 +84,6 @@ def calibrate(scene, method: str = DEFAULT_METHOD, options: CalibrationOptions |
     return res
 
 
-#: the point-map refinement's raw (independent-residual) sigmas are this many times too small: its
-#: residuals are correlated (neighbouring points share a view's depth warp). Set so that the RMS of
-#: error / sigma is about 1 on the 12 rendered scenes (paper noise) of bench/tasks.py seeds 0-11 (rotation
-#: and translation factors apply to each block's rotation and translation parts); bench/calibration.py
-#: ("Point-map refinement") reports how well they match the errors on its own scenes.
-POINT_MAP_SIGMA_INFLATION = {"hand_eye_rotation": 10.0, "hand_eye_translation": 27.0, "scale": 20.0,
-                             "T_b1_b2_rotation": 28.0, "T_b1_b2_translation": 38.0}
-
-
 def _views_of(scene, result, include_dropped: bool = False):
     """``(rows (V,), arms (V,), T_b_e (V, 4, 4))``: the reconstruction rows of the views the calibration used
     (and those it dropped, with ``include_dropped``), sorted, with each one's arm and end-effector pose."""
@@ -121,9 +112,19 @@ def kinematic_camera_poses(result, arms: np.ndarray, T_b_e: np.ndarray) -> np.nd
                      for a, e in zip(arms, E)])
 
 
-def refine_point_maps(scene, result: CalibrationResult, options: CalibrationOptions | None = None,
-                      progress=None) -> dict:
-    """Refine ``result`` in place with the point maps (``calibration._pointmaps``); returns the report that
+#: the point-map refinement's raw (independent-residual) sigmas are this many times too small: its
+#: residuals are correlated (neighbouring points share a view's depth warp). Set so that the RMS of
+#: error / sigma is about 1 on the 12 rendered scenes (paper noise) of bench/tasks.py seeds 0-11 (rotation
+#: and translation factors apply to each block's rotation and translation parts); bench/calibration.py
+#: ("Point-map refinement") reports how well they match the errors on its own scenes.
+POINT_MAP_SIGMA_INFLATION = {"hand_eye_rotation": 10.0, "hand_eye_translation": 27.0, "scale": 20.0,
+                             "T_b1_b2_rotation": 28.0, "T_b1_b2_translation": 38.0}
+
+
+def _refine_with_point_maps(scene, result: CalibrationResult, options: CalibrationOptions | None = None,
+                            progress=None) -> dict:
+    """Refine ``result`` in place with the point maps (``calibration._pointmap_refine``, the default estimator);
+    returns the report that
     also goes to ``result.info["point_maps"]``.
 
     When accepted: ``T_e1_c1``, ``T_e2_c2``, ``scale``, ``T_b1_b2`` take the refined values; ``T_b1_w`` is
@@ -136,7 +137,7 @@ def refine_point_maps(scene, result: CalibrationResult, options: CalibrationOpti
 
     from ._closed_form import pair_motions, scaled
     from ._cloud import auto_conf_threshold
-    from ._pointmaps import camera_frame_views, refine_with_point_maps
+    from ._pointmap_refine import camera_frame_views, refine_with_point_maps
     from ._solve import ARM_NAMES, _residual_summary
 
     opts = options or CalibrationOptions()
@@ -212,6 +213,131 @@ def _refined_uncertainty(result, cov: np.ndarray, before: dict) -> dict:
     return u
 
 
+def refine_point_maps(scene, result: CalibrationResult, options: CalibrationOptions | None = None,
+                      progress=None) -> dict:
+    """The point-map stage of :func:`calibrate`: ``options.estimator`` "refine" (default) or "joint"."""
+    opts = options or CalibrationOptions()
+    if opts.estimator == "joint":
+        return _estimate_jointly(scene, result, options, progress)
+    return _refine_with_point_maps(scene, result, options, progress)
+
+
+def _estimate_jointly(scene, result: CalibrationResult, options: CalibrationOptions | None = None,
+                      progress=None) -> dict:
+    """Re-solve ``result`` in place as one weighted estimate of the kinematic loop and the point maps
+    (``calibration._estimate``); returns the report that also goes to ``result.info["point_maps"]``.
+
+    When the held-out check prefers it: ``T_e1_c1``, ``T_e2_c2``, ``scale``, ``T_b1_b2`` and ``T_b1_w`` take the
+    joint values, ``T_b2_w = T_b1_b2^-1 T_b1_w``, the residuals are recomputed, and the uncertainty comes
+    from the same weighted problem. Otherwise ``result`` keeps the pose-only values and a warning says why.
+    """
+    from ._estimate import estimate_jointly
+    from ._joint import JointState
+
+    t0 = time.perf_counter()
+    rows, arms, E = _views_of(scene, result)
+    views = _map_views(scene, result, rows, arms, E)
+    P = scene.reconstruction.T_w_c[rows]
+    start = JointState(result.T_e1_c1, result.T_e2_c2, result.scale, result.T_b1_b2, result.T_b1_w, np.zeros(len(rows)))
+    noise = (np.radians(result.noise["rotation_deg"]), result.noise["translation_mm"] * 1e-3)
+    fit = estimate_jointly(views, arms, E, P, start, noise, progress)
+    report = _fit_report(scene, fit, rows, views)
+    for v in fit.dropped_views:
+        result.warnings.append(f"the point map of {report['depth_factors'][v]['image']} contradicts its own pose "
+                               "(depth factor or spread far from the other views'): left out of the joint estimate")
+    if not fit.accepted:
+        result.warnings.append(f"point-map refinement not applied ({fit.reason}); the pose-only values are kept")
+    else:
+        report["joint_solve"] = {"T_e1_c1": result.T_e1_c1, "T_e2_c2": result.T_e2_c2, "scale": result.scale,
+                                 "T_b1_b2": result.T_b1_b2, "T_b1_w": result.T_b1_w, "T_b2_w": result.T_b2_w,
+                                 "residuals": result.residuals}
+        _apply(scene, result, fit, rows, arms, E, options)
+    report["time_s"] = time.perf_counter() - t0
+    result.info["point_maps"] = report
+    if len(fit.residuals_before_m):
+        result.diagnostics["point_map_residuals_m"] = (fit.residuals_before_m, fit.residuals_after_m)
+    return report
+
+
+def _map_views(scene, result, rows, arms, E) -> list:
+    """The used views' point maps in their camera frames: confident pixels, not the arm's own rig."""
+    from ._cloud import auto_conf_threshold
+    from ._pointmaps import camera_frame_views
+
+    rec = scene.reconstruction
+    keep = np.all(np.isfinite(rec.pts3d[rows]), axis=-1)
+    if rec.conf is not None:
+        conf = rec.conf[rows]
+        keep &= (conf > auto_conf_threshold(rec.conf)) & (conf > 0)
+    for arm in scene.arms:  # each arm's own fingers move with the camera: not scene points
+        keep[arms == arm.index] &= ~_rig_pixels(scene, result, arm)[None]
+    return camera_frame_views(rec.pts3d[rows], rec.T_w_c[rows], keep, arms, E)
+
+
+def _fit_report(scene, fit, rows, views) -> dict:
+    rec = scene.reconstruction
+    r0, r1 = fit.residuals_before_m, fit.residuals_after_m
+    kappa = np.asarray(getattr(fit.state, "kappa", np.zeros(len(rows))))
+    return {"accepted": fit.accepted, "reason": fit.reason, "views": int(len(views)),
+            "estimator": "one weighted estimate: kinematic loop + point maps + per-view depth factors",
+            "rms_before_mm": float(np.sqrt(np.mean(r0 ** 2)) * 1e3) if len(r0) else None,
+            "rms_after_mm": float(np.sqrt(np.mean(r1 ** 2)) * 1e3) if len(r1) else None,
+            "median_before_mm": float(np.median(np.abs(r0)) * 1e3) if len(r0) else None,
+            "median_after_mm": float(np.median(np.abs(r1)) * 1e3) if len(r1) else None,
+            "point_pairs": fit.pairs, "cross_arm_pairs": fit.cross_arm, "rounds": fit.rounds,
+            "noise": fit.noise, "held_out_cost": fit.held_out,
+            "depth_factors": [{"image": str(rec.image[j]), "arm": int(rec.arm[j]), "factor": float(np.exp(k))}
+                              for j, k in zip(rows, kappa)],
+            "dropped_views": fit.dropped_views,
+            "note": "RMS / median point-to-plane distance between overlapping views placed by the kinematics"}
+
+
+def _apply(scene, result, fit, rows, arms, E, options) -> None:
+    """Take the joint estimate into ``result``: values, residuals, uncertainty, depth factors."""
+    from bimanual_app.transforms import inv_T
+
+    from ._closed_form import pair_motions
+    from ._solve import ARM_NAMES, _residual_summary
+
+    opts = options or CalibrationOptions()
+    st, rec = fit.state, scene.reconstruction
+    result.T_e1_c1, result.T_e2_c2, result.scale, result.T_b1_b2 = st.T_e1_c1, st.T_e2_c2, st.scale, st.T_b1_b2
+    result.T_b1_w = st.T_b1_w
+    result.T_b2_w = inv_T(result.T_b1_b2) @ result.T_b1_w
+    Es = [E[arms == a] for a in (1, 2)]
+    Cs = [rec.T_w_c[rows][arms == a] for a in (1, 2)]
+    kept = [np.ones(len(e), dtype=bool) for e in Es]
+    pms = [pair_motions(e, c, consecutive=opts.pairs == "consecutive") for e, c in zip(Es, Cs)]
+    state = SimpleNamespace(X=[result.T_e1_c1, result.T_e2_c2], W=[result.T_b1_w, result.T_b2_w],
+                            scale=result.scale)  # what _residual_summary reads of a solver state
+    result.residuals = _residual_summary(Es, Cs, kept, pms, state, ARM_NAMES)
+    result.uncertainty = _joint_uncertainty(result, fit.covariance)
+    result.diagnostics["depth_log_factor"] = {int(j): float(k) for j, k in zip(rows, st.kappa)}
+
+
+def _joint_uncertainty(result, cov: np.ndarray) -> dict:
+    """The uncertainty dict of every output from the joint problem's covariance (25 + V, 25 + V)."""
+    from ._uncertainty import _block
+
+    C = np.asarray(cov, dtype=np.float64)
+    u = dict(result.uncertainty or {})
+    for name, k0, T in (("T_e1_c1", 0, result.T_e1_c1), ("T_e2_c2", 6, result.T_e2_c2)):
+        G = np.zeros((6, 6))  # right correction: rotvec R w, translation R v
+        G[:3, :3] = G[3:, 3:] = T[:3, :3]
+        u[name] = _block(G @ C[k0:k0 + 6, k0:k0 + 6] @ G.T)
+    sd = float(np.sqrt(max(C[12, 12], 0.0)))
+    u["scale"] = {"std": result.scale * sd, "percent": 100 * sd}
+    for name, k0, T in (("T_b1_b2", 13, result.T_b1_b2), ("T_b1_w", 19, result.T_b1_w)):
+        t = T[:3, 3]
+        G = np.eye(6)  # left correction: rotvec w, translation w x t + v
+        G[3:, :3] = -np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+        u[name] = _block(G @ C[k0:k0 + 6, k0:k0 + 6] @ G.T)
+    u["estimator"] = ("joint weighted estimate (kinematic loop + point maps): linearised covariance with the noise "
+                      "levels estimated from the data, point maps down-weighted by their correlation factor; "
+                      f"T_b2_w: {(result.uncertainty or {}).get('estimator', 'pose-only solve')}")
+    return u
+
+
 ROBOT_RADIUS = 0.15  # m: points this close to a base's vertical axis are taken as the robot itself
 
 
@@ -234,7 +360,9 @@ def scene_cloud(scene, result: CalibrationResult, conf_threshold: float | None =
     T_w_c = rec.T_w_c[rows]
     anchored = bool((result.info.get("point_maps") or {}).get("accepted"))
     if anchored:
-        pts3d, T_w_c = _kinematic_anchor(pts3d, T_w_c, result, arms, E)
+        logk = result.diagnostics.get("depth_log_factor", {})
+        factor = np.exp([logk.get(int(j), 0.0) for j in rows])
+        pts3d, T_w_c = _kinematic_anchor(pts3d, T_w_c, result, arms, E, factor)
     rig_pixels = {}
     if wrist_rig:
         for arm in scene.arms:  # each arm's own fingers, found over all its registered views
@@ -281,17 +409,21 @@ def _rig_pixels(scene, result, arm) -> np.ndarray:
     return cache[arm.name]
 
 
-def _kinematic_anchor(pts3d_w: np.ndarray, T_w_c: np.ndarray, result, arms: np.ndarray, T_b_e: np.ndarray
-                      ) -> tuple[np.ndarray, np.ndarray]:
+def _kinematic_anchor(pts3d_w: np.ndarray, T_w_c: np.ndarray, result, arms: np.ndarray, T_b_e: np.ndarray,
+                      depth_factor: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Move each view's point map (V, H, W, 3) in w to where the kinematics put its camera: ``T_w_c`` (V, 4, 4)
     becomes ``(T_b1_w^-1 T_b1_c)`` with its translation in w units, and each map follows its camera. The
-    map keeps its shape in its own camera frame; only the reconstruction's error in the view's pose goes.
+    map keeps its shape in its own camera frame (scaled by the view's ``depth_factor`` (V,) when given);
+    only the reconstruction's error in the view's pose goes.
     Returns the moved maps and poses (the input arrays are not changed)."""
     from bimanual_app.transforms import inv_T
 
     C_w = inv_T(result.T_b1_w) @ kinematic_camera_poses(result, arms, T_b_e)
     C_w[:, :3, 3] /= result.scale
-    M = C_w @ inv_T(np.asarray(T_w_c, dtype=np.float64))  # (V, 4, 4): old camera pose -> new, in w
+    f = np.ones(len(C_w)) if depth_factor is None else np.asarray(depth_factor, dtype=np.float64)
+    D = np.tile(np.eye(4), (len(C_w), 1, 1))
+    D[:, :3, :3] *= f[:, None, None]
+    M = C_w @ D @ inv_T(np.asarray(T_w_c, dtype=np.float64))  # (V, 4, 4): old camera pose -> new, in w
     out = np.einsum("vij,vhwj->vhwi", M[:, :3, :3], pts3d_w.astype(np.float64)) + M[:, None, None, :3, 3]
     return out.astype(pts3d_w.dtype), C_w
 

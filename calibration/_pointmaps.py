@@ -10,12 +10,13 @@ same table and objects. Placed by the kinematics, view ``i`` of arm ``a`` puts i
 where ``T_ba_e(i)`` is the arm's forward kinematics (millimetre-accurate) and only ``T_e1_c1``,
 ``T_e2_c2``, ``scale`` and ``T_b1_b2`` (19 numbers) are unknown. When they are right, every pair of views
 lays the same surface in the same place; when they are off, views taken from different poses disagree
-in a way that depends on the pose. This module finds the 19 numbers that minimise the point-to-plane
-distance between overlapping views (an ICP whose only free parameters are the calibration's, so the
-per-view pose error drops out: each view keeps its own depth and takes its pose from the arm).
+in a way that depends on the pose. A foundation model also gets each view's depth scale a little wrong,
+so each view carries its own depth factor ``exp(kappa_v)`` on top of the shared scale.
 
-Unlike a multiway registration with a free pose per view (which partial overlap and a dominant table
-leave under-determined), the problem has 19 unknowns and tens of thousands of residuals.
+This module holds the geometry of that residual family: the views in their camera frames, the point
+pairs between overlapping views (projective association, or nearest neighbours), and the point-to-plane
+residuals with their analytic Jacobian. ``calibration._joint`` weighs them against the kinematic loop
+in one estimator.
 
 Written with scipy (``least_squares`` with a soft-L1 loss, ``cKDTree`` correspondences) because the
 parametrisation - every view's pose tied to the arm's kinematics through shared unknowns - is not one
@@ -24,7 +25,7 @@ that Open3D's or pycolmap's registration offers.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -32,27 +33,11 @@ from bimanual_app.transforms import check_shape, make_T, so3_exp
 
 from ._fusion import pointmap_intrinsics
 
-__all__ = ["PointMapView", "RefineResult", "camera_frame_views", "refine_with_point_maps", "grid_normals"]
+__all__ = ["PointMapView", "camera_frame_views", "grid_normals", "find_pairs", "MapPairs", "map_residuals",
+           "map_jacobian", "view_camera_poses", "unpack_corrections"]
 
-#: correspondence radii (m) of the successive ICP rounds: coarse to fine; the last is repeated (up to
-#: MAX_FINE_ROUNDS times) until a round moves no point of the workspace by more than CONVERGED_M (any round
-#: that moves less ends the refinement: the estimate has settled, e.g. point maps that already agree). Point-to-plane
-#: pairs slide freely along the table, so what corrects the in-plane error is re-matching at object edges:
-#: slow, round by round, after the coarse error is gone.
-RADII = (0.03, 0.02, 0.012, 0.008)
-MAX_FINE_ROUNDS = 4
-CONVERGED_M = 2e-4
-LEVER_M = 0.5  # a rotation change is judged by what it does this far away (the scale's likewise)
-POINTS_PER_VIEW = 800  # sampled points per view that look for partners in every other view
-PARTNERS_PER_ARM = 6  # each view is matched with the 4 nearest cameras of each arm (see _partner_views)
-TARGETS_PER_VIEW = 6000  # points per view among which partners are looked for (point-to-plane needs no more)
+PARTNERS_PER_ARM = 6  # each view is matched with the 6 nearest cameras of each arm (see _partner_views)
 MIN_NORMAL_COS = 0.8  # partners whose normals differ more (about 37 deg) are on different surfaces
-ROBUST_KNEE_M = 0.003  # soft-L1 knee: residuals beyond 3 mm count less and less
-MIN_RESIDUALS = 500
-# a refinement that moves an output further than this is not a correction of the joint solve
-MAX_ROT_CHANGE_DEG = 5.0
-MAX_TRANS_CHANGE_M = 0.05
-MAX_LOG_SCALE_CHANGE = 0.1
 
 
 @dataclass(frozen=True)
@@ -80,41 +65,6 @@ class PointMapView:
     @property
     def projective(self) -> bool:
         return self.index is not None and self.intrinsics is not None and bool(np.all(np.isfinite(self.intrinsics)))
-
-
-@dataclass
-class RefineResult:
-    """Refined calibration and how much the views' agreement improved.
-
-    Attributes:
-        T_e1_c1, T_e2_c2, T_b1_b2: (4, 4); scale: metric = scale * reconstruction units.
-        accepted: False when the refinement was refused (``reason``); the inputs are then returned as given.
-        rms_before_m, rms_after_m: RMS point-to-plane distance between overlapping views (m) on the final
-            round's correspondences, at the joint solve and at the refined values.
-        residuals_before_m, residuals_after_m: (R,) those distances (for plots).
-        correspondences: number of point pairs in the final round; cross_arm: of them between the arms.
-        rounds: per ICP round ``{"radius_m", "pairs", "rms_m", "moved_m"}`` (``moved_m``: how far the round's
-            change moves the workspace, see ``_movement``).
-        covariance: (19, 19) linearised covariance of the corrections (rotation vector and translation of
-            ``T_e1_c1`` in c1, the same for ``T_e2_c2``, log scale, rotation vector and translation of
-            ``T_b1_b2`` on the left in b1), from the last round's Jacobian and the robust spread of its
-            residuals, as if they were independent (they are not: see :func:`uncertainty`).
-    """
-
-    T_e1_c1: np.ndarray
-    T_e2_c2: np.ndarray
-    scale: float
-    T_b1_b2: np.ndarray
-    accepted: bool
-    reason: str = ""
-    rms_before_m: float = float("nan")
-    rms_after_m: float = float("nan")
-    residuals_before_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    residuals_after_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    correspondences: int = 0
-    cross_arm: int = 0
-    rounds: list = field(default_factory=list)
-    covariance: np.ndarray | None = None
 
 
 def grid_normals(points_c: np.ndarray) -> np.ndarray:
@@ -158,7 +108,7 @@ def camera_frame_views(pts3d_w: np.ndarray, T_w_c: np.ndarray, keep: np.ndarray,
     return out
 
 
-def _unpack(x: np.ndarray, T_e1_c1, T_e2_c2, scale, T_b1_b2):
+def unpack_corrections(x: np.ndarray, T_e1_c1, T_e2_c2, scale, T_b1_b2):
     """Corrections ``x`` (19,) -> the four outputs: hand-eyes corrected on the right (in the camera frame),
     the base on the left (in b1), the scale by a log factor."""
     T1 = T_e1_c1 @ make_T(so3_exp(x[0:3]), x[3:6])
@@ -167,7 +117,7 @@ def _unpack(x: np.ndarray, T_e1_c1, T_e2_c2, scale, T_b1_b2):
     return T1, T2, float(scale * np.exp(x[12])), Tb
 
 
-def _camera_poses(views, T1, T2, Tb) -> np.ndarray:
+def view_camera_poses(views, T1, T2, Tb) -> np.ndarray:
     """(V, 4, 4) each view's camera pose in b1 from the kinematics and the calibration."""
     return np.stack([(v.T_b_e @ T1) if v.arm == 1 else (Tb @ v.T_b_e @ T2) for v in views])
 
@@ -196,36 +146,63 @@ def _partner_views(views, Tc: np.ndarray, per_arm: int = PARTNERS_PER_ARM) -> li
     return out
 
 
-def _projective_correspondences(views, samples, Tc, scale, Tb, radius):
-    """As :func:`_correspondences`, the partner of a sample being the point at the pixel where it projects
-    in the other view (projective data association, as in KinectFusion's ICP): no search, as every view
-    is an organised map with a fitted pinhole."""
+def _projective_partners(views, a: int, b: int, Pa, Tc, sv, radius):
+    """Indices into view ``b``'s points of the partners of the placed samples ``Pa`` (K, 3) of view ``a`` (-1:
+    none): the point at the pixel where each projects in ``b`` (projective data association, as in
+    KinectFusion's ICP), no search, as every view is an organised map with a fitted pinhole."""
+    u = views[b]
+    R, t = Tc[b, :3, :3], Tc[b, :3, 3]
+    c = (Pa - t) @ R / sv[b]  # in camera b, its own units
+    z = c[:, 2]
+    front = z > 1e-9
+    zs = np.where(front, z, 1.0)
+    fx, fy, cx, cy = u.intrinsics
+    col, row = np.round(fx * c[:, 0] / zs + cx), np.round(fy * c[:, 1] / zs + cy)
+    H, W = u.index.shape
+    inside = front & (col >= 0) & (col < W) & (row >= 0) & (row < H)
+    j = np.full(len(Pa), -1, dtype=np.int64)
+    j[inside] = u.index[row[inside].astype(np.int64), col[inside].astype(np.int64)]
+    return j
+
+
+def _nearest_partners(trees, targets, b: int, Pa, radius):
+    """As :func:`_projective_partners`, by nearest neighbour among view ``b``'s placed target points."""
+    d, j = trees[b].query(Pa, distance_upper_bound=radius)
+    return np.where(np.isfinite(d), targets[b][np.minimum(j, len(targets[b]) - 1)], -1)
+
+
+def find_pairs(views, samples, targets, Tc: np.ndarray, sv: np.ndarray, Tb: np.ndarray, radius: float):
+    """Point pairs between overlapping views within ``radius`` (m) with agreeing normals, at the current
+    estimate: each view's ``samples`` (indices) look for a partner in each of its partner views.
+
+    Args:
+        Tc: (V, 4, 4) camera poses in b1; sv: (V,) each view's metric scale (shared scale x depth factor);
+        Tb: (4, 4) T_b1_b2 (to leave out the arms' columns).
+    Returns:
+        :class:`MapPairs` or None when no pair is found.
+    """
+    projective = all(v.projective for v in views)
+    trees = None
+    if not projective:
+        from scipy.spatial import cKDTree
+
+        trees = [cKDTree(sv[k] * v.points_c[g] @ T[:3, :3].T + T[:3, 3]) for k, (v, T, g) in
+                 enumerate(zip(views, Tc, targets))]
     va, ia, vb, ib = [], [], [], []
-    R, t = Tc[:, :3, :3], Tc[:, :3, 3]
-    partners = _partner_views(views, Tc)
-    for a, v in enumerate(views):
+    for a, (v, partners) in enumerate(zip(views, _partner_views(views, Tc))):
         s = samples[a]
-        Pa = scale * v.points_c[s] @ R[a].T + t[a]
-        Na = v.normals_c[s] @ R[a].T
+        Pa = sv[a] * v.points_c[s] @ Tc[a, :3, :3].T + Tc[a, :3, 3]
+        Na = v.normals_c[s] @ Tc[a, :3, :3].T
         free = ~_robot_column(Pa, Tb)
-        for b in partners[a]:
-            u = views[b]
-            c = (Pa - t[b]) @ R[b] / scale  # in camera b, its own units
-            z = c[:, 2]
-            front = free & (z > 1e-9)
-            zs = np.where(front, z, 1.0)
-            fx, fy, cx, cy = u.intrinsics
-            col = np.round(fx * c[:, 0] / zs + cx)
-            row = np.round(fy * c[:, 1] / zs + cy)
-            H, W = u.index.shape
-            inside = front & (col >= 0) & (col < W) & (row >= 0) & (row < H)
-            j = np.full(len(s), -1, dtype=np.int64)
-            j[inside] = u.index[row[inside].astype(np.int64), col[inside].astype(np.int64)]
-            hit = np.flatnonzero(j >= 0)
+        for b in partners:
+            j = (_projective_partners(views, a, b, Pa, Tc, sv, radius) if projective
+                 else _nearest_partners(trees, targets, b, Pa, radius))
+            hit = np.flatnonzero((j >= 0) & free)
             if not len(hit):
                 continue
-            Xb = scale * u.points_c[j[hit]] @ R[b].T + t[b]
-            Nb = u.normals_c[j[hit]] @ R[b].T
+            u = views[b]
+            Xb = sv[b] * u.points_c[j[hit]] @ Tc[b, :3, :3].T + Tc[b, :3, 3]
+            Nb = u.normals_c[j[hit]] @ Tc[b, :3, :3].T
             ok = (np.linalg.norm(Pa[hit] - Xb, axis=1) < radius) & (np.abs(np.sum(Na[hit] * Nb, axis=1)) >= MIN_NORMAL_COS)
             n = int(ok.sum())
             if n:
@@ -234,7 +211,7 @@ def _projective_correspondences(views, samples, Tc, scale, Tb, radius):
 
 
 def _gather(views, va, ia, vb, ib):
-    """``(va, pa, vb, pb, nb)`` from per-pair lists of view and point indices, or None when empty."""
+    """:class:`MapPairs` from per-pair lists of view and point indices, or None when empty."""
     if not va:
         return None
     va, ia, vb, ib = (np.concatenate(z) for z in (va, ia, vb, ib))
@@ -247,57 +224,31 @@ def _gather(views, va, ia, vb, ib):
         m = vb == k
         pb[m] = v.points_c[ib[m]]
         nb[m] = v.normals_c[ib[m]]
-    return va, pa, vb, pb, nb
+    return MapPairs(va, pa, vb, pb, nb, len(views))
 
 
-def _correspondences(views, samples, targets, Tc, scale, Tb, radius):
-    """Point pairs between views within ``radius`` (m) with agreeing normals, at the current estimate:
-    each view's ``samples`` (indices) look for their nearest partner among the ``targets`` of every other.
-
-    Returns arrays ``(va, pa, vb, pb, nb)``: view and camera-frame point of each sample, view, point and
-    normal of its nearest partner."""
-    from scipy.spatial import cKDTree
-
-    placed = [scale * v.points_c[g] @ T[:3, :3].T + T[:3, 3] for v, T, g in zip(views, Tc, targets)]
-    trees = [cKDTree(p) for p in placed]
-    partners = _partner_views(views, Tc)
-    va, ia, vb, ib = [], [], [], []
-    for a, v in enumerate(views):
-        s = samples[a]
-        Pa = scale * v.points_c[s] @ Tc[a, :3, :3].T + Tc[a, :3, 3]
-        Na = v.normals_c[s] @ Tc[a, :3, :3].T
-        free = ~_robot_column(Pa, Tb)
-        for b in partners[a]:
-            u = views[b]
-            d, j = trees[b].query(Pa, distance_upper_bound=radius)
-            ok = np.isfinite(d) & free
-            if not ok.any():
-                continue
-            jj = targets[b][np.minimum(j, len(placed[b]) - 1)]
-            Nb = u.normals_c[jj] @ Tc[b, :3, :3].T
-            ok &= np.abs(np.sum(Na * Nb, axis=1)) >= MIN_NORMAL_COS
-            n = int(ok.sum())
-            if n:
-                va.append(np.full(n, a)), ia.append(s[ok]), vb.append(np.full(n, b)), ib.append(jj[ok])
-    return _gather(views, va, ia, vb, ib)
-
-
-def _transform_grouped(R: np.ndarray, t: np.ndarray, p: np.ndarray, bounds: np.ndarray, s: float = 1.0) -> np.ndarray:
-    """``s R[v] p + t[v]`` (or ``R[v] p`` when ``t`` is None) for points ``p`` (K, 3) sorted by view, view
+def _transform_grouped(R: np.ndarray, t: np.ndarray | None, p: np.ndarray, bounds: np.ndarray,
+                       s: np.ndarray | None = None) -> np.ndarray:
+    """``s[v] R[v] p + t[v]`` (or ``R[v] p`` when ``t`` is None) for points ``p`` (K, 3) sorted by view, view
     ``v`` owning rows ``bounds[v]:bounds[v+1]``: one small matmul per view, no (K, 3, 3) gather."""
     out = np.empty_like(p)
     for v in range(len(R)):
         a, b = bounds[v], bounds[v + 1]
         if b > a:
-            out[a:b] = s * p[a:b] @ R[v].T + (0.0 if t is None else t[v])
+            out[a:b] = (1.0 if s is None else s[v]) * p[a:b] @ R[v].T + (0.0 if t is None else t[v])
     return out
 
 
-class _Pairs:
-    """Correspondences laid out for fast residuals: the samples sorted by their view, the partners by theirs."""
+class MapPairs:
+    """Point pairs between views, laid out for fast residuals: the samples sorted by their view, the
+    partners by theirs.
 
-    def __init__(self, corr, n_views: int):
-        va, pa, vb, pb, nb = corr
+    Attributes:
+        va, vb: (P,) view of each sample and of its partner; pa, pb: (P, 3) their camera-frame points;
+        nb: (P, 3) the partner's camera-frame normal (samples' order for ``va``/``pa``, partners' for the rest).
+    """
+
+    def __init__(self, va, pa, vb, pb, nb, n_views: int):
         oa = np.argsort(va, kind="stable")
         self.va, self.vb = va[oa], vb[oa]
         self.pa = pa[oa]
@@ -313,16 +264,17 @@ class _Pairs:
         return len(self.va)
 
 
-def _geometry(x, views, start, pairs: _Pairs):
+def _geometry(x, kappa, views, start, pairs: MapPairs):
     """Everything the residuals and their Jacobian share: camera rotations and translations (V, 3, 3),
-    (V, 3), the scale, and per pair (in the samples' order) ``X_a``, ``X_b``, ``N_b`` in b1."""
-    T1, T2, s, Tb = _unpack(x, *start)
-    Tc = _camera_poses(views, T1, T2, Tb)
+    (V, 3), each view's metric scale (V,), and per pair (in the samples' order) ``X_a``, ``X_b``, ``N_b`` in b1."""
+    T1, T2, s, Tb = unpack_corrections(x, *start)
+    Tc = view_camera_poses(views, T1, T2, Tb)
     R, t = Tc[:, :3, :3], Tc[:, :3, 3]
-    Xa = _transform_grouped(R, t, pairs.pa, pairs.ba, s)
-    Xb = _transform_grouped(R, t, pairs.pb, pairs.bb, s)[pairs.inv_ob]
+    sv = s * np.exp(kappa)
+    Xa = _transform_grouped(R, t, pairs.pa, pairs.ba, sv)
+    Xb = _transform_grouped(R, t, pairs.pb, pairs.bb, sv)[pairs.inv_ob]
     Nb = _transform_grouped(R, None, pairs.nb, pairs.bb)[pairs.inv_ob]
-    return R, t, s, Xa, Xb, Nb
+    return R, t, sv, Xa, Xb, Nb
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -331,30 +283,35 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
                      a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
 
 
-def _residuals(x, views, start, pairs: _Pairs) -> np.ndarray:
-    """(P,) signed point-to-plane distances (m): sample ``X_a`` from the tangent plane of its partner."""
-    _, _, _, Xa, Xb, Nb = _geometry(x, views, start, pairs)
+def map_residuals(x, kappa, views, start, pairs: MapPairs) -> np.ndarray:
+    """(P,) signed point-to-plane distances (m): sample ``X_a`` from the tangent plane of its partner.
+
+    Args:
+        x: (19,) corrections of ``start = (T_e1_c1, T_e2_c2, scale, T_b1_b2)`` (:func:`unpack_corrections`);
+        kappa: (V,) each view's log depth factor.
+    """
+    _, _, _, Xa, Xb, Nb = _geometry(x, kappa, views, start, pairs)
     return np.sum((Xa - Xb) * Nb, axis=1)
 
 
-def _jacobian(x, views, start, pairs: _Pairs) -> np.ndarray:
-    """(P, 19) derivatives of :func:`_residuals`, analytic, for a perturbation of the current estimate (the
-    hand-eyes' on the right, the base's on the left; exact at the start of a round, first-order away
-    from it, which the trust region absorbs).
+def map_jacobian(x, kappa, views, start, pairs: MapPairs) -> tuple[np.ndarray, np.ndarray]:
+    """Derivatives of :func:`map_residuals`: ``(P, 19)`` for the corrections and ``(P, V)`` for the depth
+    factors; analytic, for a perturbation of the current estimate (the hand-eyes' on the right, the base's on
+    the left; exact at ``x = 0``, first-order away from it, which the trust region absorbs).
 
-    Derived from ``X = R (s p) + t`` and ``N = R n``: a right rotation ``w`` of a view's hand-eye gives
-    ``dX = -R (s p x w)``, ``dN = -R (n x w)``; a translation ``u`` gives ``dX = R u``; a left rotation of
-    ``T_b1_b2`` gives ``dX = -X x w_b``, ``dN = -N x w_b`` for the secondary's views; the log-scale gives
-    ``dX = X - t``. Checked against finite differences in the tests."""
-    R, t, s, Xa, Xb, Nb = _geometry(x, views, start, pairs)
+    Derived from ``X = R (s_v p) + t`` and ``N = R n``: a right rotation ``w`` of a view's hand-eye gives
+    ``dX = -R (s_v p x w)``, ``dN = -R (n x w)``; a translation ``u`` gives ``dX = R u``; a left rotation of
+    ``T_b1_b2`` gives ``dX = -X x w_b``, ``dN = -N x w_b`` for the secondary's views; the log-scale and a
+    view's own log depth factor give ``dX = X - t``. Checked against finite differences in the tests."""
+    R, t, sv, Xa, Xb, Nb = _geometry(x, kappa, views, start, pairs)
     arm = np.array([v.arm for v in views])
     Rt = np.swapaxes(R, 1, 2)
     nb_a = _transform_grouped(Rt, None, Nb, pairs.ba)  # N_b in camera a
     nb_b = pairs.nb[pairs.inv_ob]  # the partner's normal and point in its own camera b
-    qb = s * pairs.pb[pairs.inv_ob]
+    qb = sv[pairs.vb][:, None] * pairs.pb[pairs.inv_ob]
     d_b = _transform_grouped(Rt, None, (Xa - Xb)[pairs.ob], pairs.bb)[pairs.inv_ob]
     # sample side: -(n_b in a) x (s p_a); partner side: -(d x n_b) + n_b x (s p_b) = n_b x (d + s p_b) in b
-    rot_a = -_cross(nb_a, s * pairs.pa)
+    rot_a = -_cross(nb_a, sv[pairs.va][:, None] * pairs.pa)
     rot_b = _cross(nb_b, d_b + qb)
     J = np.zeros((len(Xa), 19))
     am, bm = arm[pairs.va], arm[pairs.vb]
@@ -362,112 +319,16 @@ def _jacobian(x, views, start, pairs: _Pairs) -> np.ndarray:
         on_a, on_b = (am == m)[:, None].astype(np.float64), (bm == m)[:, None].astype(np.float64)
         J[:, k0:k0 + 3] = on_a * rot_a + on_b * rot_b
         J[:, k0 + 3:k0 + 6] = on_a * nb_a - on_b * nb_b
-    J[:, 12] = np.sum(Nb * ((Xa - t[pairs.va]) - (Xb - t[pairs.vb])), axis=1)
+    da = np.sum(Nb * (Xa - t[pairs.va]), axis=1)
+    db = -np.sum(Nb * (Xb - t[pairs.vb]), axis=1)
+    J[:, 12] = da + db
     # the base moves the secondary's views: -N_b x X_a for a sample, N_b x X_a for a partner (they cancel
     # when both are the secondary's: a rigid motion of both views changes nothing)
     sign = (bm == 2).astype(np.float64) - (am == 2)
     J[:, 13:16] = sign[:, None] * _cross(Nb, Xa)
     J[:, 16:19] = -sign[:, None] * Nb
-    return J
-
-
-def _movement(dx: np.ndarray) -> float:
-    """How far (m) a change of the corrections (19,) moves points of the workspace, at most."""
-    rot = np.linalg.norm(dx[[0, 1, 2, 6, 7, 8, 13, 14, 15]].reshape(3, 3), axis=1)
-    trans = np.linalg.norm(dx[[3, 4, 5, 9, 10, 11, 16, 17, 18]].reshape(3, 3), axis=1)
-    return float(max((rot * LEVER_M + trans).max(), abs(dx[12]) * LEVER_M))
-
-
-def refine_with_point_maps(views: list[PointMapView], T_e1_c1: np.ndarray, T_e2_c2: np.ndarray, scale: float,
-                           T_b1_b2: np.ndarray, radii: tuple = RADII, points_per_view: int = POINTS_PER_VIEW,
-                           max_fine_rounds: int = MAX_FINE_ROUNDS, seed: int = 0, progress=None) -> RefineResult:
-    """Refine the joint solve so that the views' point maps, placed by the kinematics, agree.
-
-    Args:
-        views: the point maps (:func:`camera_frame_views`), at least 2 per arm.
-        T_e1_c1, T_e2_c2, T_b1_b2: (4, 4) the joint solve's values; scale: its scale.
-        radii: correspondence radius (m) of each ICP round; the last one is repeated up to
-            ``max_fine_rounds`` times, until a round moves the workspace by less than ``CONVERGED_M``.
-        points_per_view: sampled points of each view that look for partners.
-        progress: optional callable(str) for one line per round.
-
-    Returns:
-        :class:`RefineResult`; refused (``accepted=False``, inputs unchanged) when the views overlap too
-        little, the agreement does not improve, or an output would move further than a correction
-        (``MAX_ROT_CHANGE_DEG``, ``MAX_TRANS_CHANGE_M``, ``MAX_LOG_SCALE_CHANGE``).
-    """
-    from scipy.optimize import least_squares
-
-    initial = tuple(check_shape(n, np.asarray(T, dtype=np.float64), (4, 4)) for n, T in
-                    (("T_e1_c1", T_e1_c1), ("T_e2_c2", T_e2_c2))) + (float(scale),) + (
-        check_shape("T_b1_b2", np.asarray(T_b1_b2, dtype=np.float64), (4, 4)),)
-
-    def refused(reason: str, **kw) -> RefineResult:
-        return RefineResult(*initial, False, reason, **kw)
-
-    per_arm = [sum(1 for v in views if v.arm == a) for a in (1, 2)]
-    if min(per_arm) < 2:
-        return refused(f"needs 2 or more point maps per arm, has {per_arm[0]} / {per_arm[1]}")
-    rng = np.random.default_rng(seed)
-    samples = [rng.choice(len(v.points_c), min(points_per_view, len(v.points_c)), replace=False)
-               if len(v.points_c) else np.zeros(0, dtype=int) for v in views]
-    targets = [rng.choice(len(v.points_c), min(TARGETS_PER_VIEW, len(v.points_c)), replace=False)
-               if len(v.points_c) else np.zeros(0, dtype=int) for v in views]
-    projective = all(v.projective for v in views)
-    x_scale = np.r_[[0.01] * 3, [0.005] * 3, [0.01] * 3, [0.005] * 3, [0.01], [0.01] * 3, [0.01] * 3]
-    zero = np.zeros(19)
-    current, rounds, corr, sol = initial, [], None, None
-    schedule = list(radii) + [radii[-1]] * max_fine_rounds
-    for k, radius in enumerate(schedule):
-        T1, T2, s, Tb = current
-        Tc = _camera_poses(views, T1, T2, Tb)
-        corr = (_projective_correspondences(views, samples, Tc, s, Tb, radius) if projective
-                else _correspondences(views, samples, targets, Tc, s, Tb, radius))
-        n = 0 if corr is None else len(corr[0])
-        if n < MIN_RESIDUALS:
-            return refused(f"the point maps overlap too little: {n} point pairs within {radius * 1e3:.0f} mm "
-                           f"(needs {MIN_RESIDUALS})", rounds=rounds)
-        corr = _Pairs(corr, len(views))
-        # each round solves for corrections of its own start, where the analytic Jacobian is exact
-        sol = least_squares(_residuals, zero, jac=_jacobian, args=(views, current, corr), loss="soft_l1",
-                            f_scale=ROBUST_KNEE_M, x_scale=x_scale, max_nfev=50, tr_solver="lsmr")
-        moved = _movement(sol.x)
-        current = _unpack(sol.x, *current)
-        rounds.append({"radius_m": radius, "pairs": n, "rms_m": float(np.sqrt(np.mean(sol.fun ** 2))),
-                       "moved_m": moved})
-        if progress:
-            progress(f"point-map refinement: {radius * 1e3:.0f} mm round, {n} point pairs, "
-                     f"RMS {rounds[-1]['rms_m'] * 1e3:.2f} mm, moved {moved * 1e3:.2f} mm")
-        if moved < CONVERGED_M:  # settled: finer radii would only re-select the same pairs
-            break
-    r0 = _residuals(zero, views, initial, corr)
-    r1 = _residuals(zero, views, current, corr)
-    va, vb = corr.va, corr.vb
-    arm = np.array([v.arm for v in views])
-    info = dict(rms_before_m=float(np.sqrt(np.mean(r0 ** 2))), rms_after_m=float(np.sqrt(np.mean(r1 ** 2))),
-                residuals_before_m=r0, residuals_after_m=r1, correspondences=int(len(va)),
-                cross_arm=int(np.sum(arm[va] != arm[vb])), rounds=rounds)
-    # judged robustly (the median absolute distance), as the fit is: a few far pairs must not decide
-    if np.median(np.abs(r1)) >= np.median(np.abs(r0)):
-        return refused("the point maps agree no better after refinement", **info)
-    rot, trans, dlog = _change(initial, current)
-    if rot > MAX_ROT_CHANGE_DEG or trans > MAX_TRANS_CHANGE_M or abs(dlog) > MAX_LOG_SCALE_CHANGE:
-        return refused(f"the refinement would move an output by {rot:.1f} deg / {trans * 1e3:.0f} mm / scale "
-                       f"{(np.exp(dlog) - 1) * 100:+.1f} %, more than a correction of the joint solve", **info)
-    if info["cross_arm"] == 0:
-        return refused("no point pairs between the two arms' views: T_b1_b2 cannot be refined", **info)
-    fun, jac = sol.fun, sol.jac
-    sigma = 1.4826 * np.median(np.abs(fun - np.median(fun)))  # robust spread of the residuals (m)
-    cov = sigma ** 2 * np.linalg.pinv(jac.T @ jac)
-    return RefineResult(*current, True, "", covariance=cov, **info)
-
-
-def _change(a: tuple, b: tuple) -> tuple[float, float, float]:
-    """Largest rotation (deg) and translation (m) change between two ``(T_e1_c1, T_e2_c2, scale, T_b1_b2)``
-    and the log-scale change."""
-    from bimanual_app.transforms import rotation_angle_between
-
-    Ts = [(a[0], b[0]), (a[1], b[1]), (a[3], b[3])]
-    rot = max(float(np.degrees(rotation_angle_between(p[:3, :3], q[:3, :3]))) for p, q in Ts)
-    trans = max(float(np.linalg.norm(p[:3, 3] - q[:3, 3])) for p, q in Ts)
-    return rot, trans, float(np.log(b[2] / a[2]))
+    Jk = np.zeros((len(Xa), len(views)))
+    rows = np.arange(len(Xa))
+    Jk[rows, pairs.va] += da
+    Jk[rows, pairs.vb] += db
+    return J, Jk

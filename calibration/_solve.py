@@ -59,6 +59,11 @@ class CalibrationOptions:
             refine the joint solve so that the views' point maps, placed by the kinematics, agree
             (``calibration._pointmaps``), and build the cloud from the views placed by the kinematics.
             Arrays-only :func:`solve_bijcr` has no point maps and ignores it.
+        estimator: how the point maps are used: "refine" (default: an ICP of the 19 calibration numbers with
+            every view placed by the kinematics, the kinematic loop left out, ``calibration._pointmap_refine``)
+            or "joint" (one weighted estimate of the kinematic loop and the point maps with per-view depth
+            factors, noise levels from the data and a held-out check against the pose-only solve,
+            ``calibration._joint``; docs/calibration.md has both measured).
     """
 
     alpha: float = 0.5
@@ -77,12 +82,15 @@ class CalibrationOptions:
     on_degenerate: str = "raise"
     uncertainty: str = "jacobian"
     point_maps: bool = True
+    estimator: str = "refine"
 
     def __post_init__(self):
         if self.pairs not in ("all", "consecutive"):
             raise ValueError(f"pairs must be 'all' or 'consecutive', got {self.pairs!r}")
         if self.on_degenerate not in ("raise", "warn"):
             raise ValueError(f"on_degenerate must be 'raise' or 'warn', got {self.on_degenerate!r}")
+        if self.estimator not in ("refine", "joint"):
+            raise ValueError(f"estimator must be 'refine' or 'joint', got {self.estimator!r}")
         if self.uncertainty not in ("jacobian", "jackknife", "none"):
             raise ValueError(f"uncertainty must be 'jacobian', 'jackknife' or 'none', got {self.uncertainty!r}")
         if (self.noise_rot_deg is None) != (self.noise_trans_mm is None):

@@ -4,7 +4,8 @@ Two estimators:
 
 - ``jacobian`` (default): the linearised covariance of the absolute problem at the returned solution
   (``_absolute.covariance``: ``(J^T J)^-1`` times the a-posteriori variance factor, with the per-view noise
-  estimated from the residuals), propagated to each output through its own Jacobian. For the paper's
+  estimated from the residuals), propagated to each output through its own Jacobian. A direction the
+  views cannot determine has an infinite variance, and so has every output that depends on it. For the paper's
   methods this is the uncertainty of the same data around their answer (a linearisation, not their
   estimator's own spread).
 - ``jackknife``: the delete-one-view jackknife of the chosen method itself (N1 + N2 re-solves).
@@ -33,6 +34,19 @@ def _block(C6: np.ndarray) -> dict:
             "translation_norm_mm": float(1000 * np.sqrt(max(np.trace(Ct), 0.0)))}
 
 
+def propagate(G: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """``G cov G^T`` (M, M) for a Jacobian G (M, n) and a covariance (n, n) whose undetermined parameters
+    carry ``inf`` on the diagonal: each output that depends on one is unbounded (``inf``) too."""
+    unbounded = np.isinf(np.diag(cov))
+    C = np.where(np.isinf(cov), 0.0, cov)
+    out = G @ C @ G.T
+    hit = np.any(np.abs(G[:, unbounded]) > 1e-12, axis=1)
+    out[hit, :] = 0.0
+    out[:, hit] = 0.0
+    out[hit, hit] = np.inf
+    return out
+
+
 def _delta(T: np.ndarray, T0: np.ndarray) -> np.ndarray:
     """(6,) local difference of T from T0: [rotvec(R R0^T), t - t0]."""
     return np.concatenate([so3_log(T[:3, :3] @ T0[:3, :3].T), T[:3, 3] - T0[:3, 3]])
@@ -57,7 +71,7 @@ def from_covariance(st: AbsoluteState, cov: np.ndarray, names: tuple[str, ...] =
             e[k] = h
             sp, sm = st.perturbed(e), st.perturbed(-e)
             G[:, k] = (_delta(sp.W[0] @ inv_T(sp.W[1]), B0) - _delta(sm.W[0] @ inv_T(sm.W[1]), B0)) / (2 * h)
-        out["T_b1_b2"] = _block(G @ cov @ G.T)
+        out["T_b1_b2"] = _block(propagate(G, cov))
     return out
 
 

@@ -11,7 +11,8 @@ DESCRIPTION = (
     "(T_e1_c1, T_e2_c2), the reconstruction's metric scale, T_b1_w, T_b2_w and the second base T_b1_b2, each with "
     "a 1-sigma uncertainty. Writes DIR/calibration.json, DIR/scene_b1.ply (metric cloud in b1), "
     "DIR/calibration.png and ROS exports under DIR/ros/. Methods: absolute (default: joint refinement on absolute "
-    "poses, outlier views dropped, robust loss), paper (the paper's closed form + gradient refinement), "
+    "poses, outlier views dropped, robust loss), paper (the paper's closed form + gradient refinement in "
+    "PyTorch, the optional extra: pip install -e .[paper]), "
     "paper-norefine (closed form only). When the reconstruction has point maps, the solve is then refined so "
     "that the views' point maps, each placed by its arm's kinematics, lie on each other (DIR/point_maps.png), "
     "and the cloud is built from the views placed that way (--no-point-maps: skip). Ground truth, when "
@@ -44,12 +45,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-point-maps", action="store_true",
                    help="skip the point-map refinement: keep the joint solve's values and build the cloud from "
                         "the reconstruction's camera poses (the paper's cloud)")
+    p.add_argument("--estimator", choices=("refine", "joint"), default="refine",
+                   help="how the point maps are used: 'refine' (default) or 'joint' (one weighted estimate of the "
+                        "kinematic loop and the point maps, checked on held-out views; docs/calibration.md)")
     p.add_argument("--no-figure", action="store_true", help="skip calibration.png and point_maps.png")
     p.add_argument("--quiet", action="store_true", help="print only errors and the output folder")
 
 
+def _num(x: float, fmt: str = "+.2f") -> str:
+    """A value, or "unbounded" for a sigma the views do not determine (infinite)."""
+    return "unbounded" if x == float("inf") else format(x, fmt)
+
+
 def _fmt_vec(v, unit: str, k: float = 1.0) -> str:
-    return "[" + ", ".join(f"{k * x:+.2f}" for x in v) + f"] {unit}"
+    return "[" + ", ".join(_num(k * x) for x in v) + f"] {unit}"
 
 
 def summary(result, scene) -> list[str]:
@@ -61,7 +70,7 @@ def summary(result, scene) -> list[str]:
     lines = [f"method {result.method}"]
     s = f"scale    {result.scale:.5f}"
     if "scale" in u:
-        s += f"  +- {u['scale']['std']:.5f} ({u['scale']['percent']:.2f}%)"
+        s += f"  +- {_num(u['scale']['std'], '.5f')} ({_num(u['scale']['percent'], '.2f')}%)"
     lines.append(s + "   (metric = scale * reconstruction units)")
     for key in ("T_e1_c1", "T_e2_c2", "T_b1_b2"):
         T = getattr(result, key)
@@ -71,7 +80,7 @@ def summary(result, scene) -> list[str]:
             line += f" +- {_fmt_vec(u[key]['translation_mm'], 'mm')}"
         line += f";  rpy {_fmt_vec(rpy, 'deg')}"
         if key in u:
-            line += f" +- {u[key]['rotation_deg']:.3f} deg"
+            line += f" +- {_num(u[key]['rotation_deg'], '.3f')} deg"
         lines.append(line)
     for arm in scene.arms:
         used, dropped = result.views_used[arm.name], result.views_dropped[arm.name]
@@ -85,11 +94,23 @@ def summary(result, scene) -> list[str]:
                  f"{result.noise['source']})")
     pm = (result.info or {}).get("point_maps")
     if pm and pm.get("accepted"):
-        lines.append(f"point-map refinement: overlapping views {pm['median_before_mm']:.2f} -> {pm['median_after_mm']:.2f} mm "
-                     f"apart (median, {pm['point_pairs']} point pairs, {pm['cross_arm_pairs']} between the arms); "
-                     f"cloud placed by the kinematics")
+        nz, ho = pm.get("noise", {}), pm.get("held_out_cost", {})
+        if "estimator" not in pm:  # the default point-map refinement
+            lines.append(f"point-map refinement: overlapping views {pm['median_before_mm']:.2f} -> "
+                         f"{pm['median_after_mm']:.2f} mm apart (median, {pm['point_pairs']} point pairs, "
+                         f"{pm['cross_arm_pairs']} between the arms); cloud placed by the kinematics")
+            return lines
+        lines.append(f"joint estimate (kinematic loop + point maps): overlapping views {pm['median_before_mm']:.2f} -> "
+                     f"{pm['median_after_mm']:.2f} mm apart (median, {pm['point_pairs']} point pairs, "
+                     f"{pm['cross_arm_pairs']} between the arms); cloud placed by the kinematics")
+        lines.append(f"  noise from the data: loop {nz.get('loop_rotation_deg', float('nan')):.2f} deg / "
+                     f"{nz.get('loop_position_mm', float('nan')):.1f} mm per view, maps "
+                     f"{nz.get('map_mm_median', float('nan')):.2f} mm (pair summaries x "
+                     f"{nz.get('pair_summary_noise', float('nan')):.1f}); held-out cost "
+                     f"{ho.get('joint', float('nan')):.0f} (joint) vs {ho.get('pose_only', float('nan')):.0f} (pose-only)")
     elif pm:
-        lines.append(f"point-map refinement: not applied ({pm['reason']})")
+        what = "joint estimate" if "estimator" in pm else "point-map refinement"
+        lines.append(f"{what}: not applied, pose-only values kept ({pm['reason']})")
     return lines
 
 
@@ -113,12 +134,10 @@ def evaluation_lines(result, gt, model: str | None = "synthetic") -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     import time
-    from pathlib import Path
 
     t0 = time.perf_counter()
-    from bimanual_app.scene import load_scene
-
-    from . import CalibrationOptions, calibrate, write_outputs
+    from ._solve import CalibrationOptions
+    from ._stage import calibrate_stage
 
     def log(msg: str) -> None:
         if not args.quiet:
@@ -129,26 +148,25 @@ def run(args: argparse.Namespace) -> int:
             alpha=args.alpha, pairs=args.pairs, reject_outliers=args.reject, robust=not args.no_robust,
             noise_rot_deg=args.noise[0] if args.noise else None, noise_trans_mm=args.noise[1] if args.noise else None,
             on_degenerate="warn" if args.allow_degenerate else "raise", uncertainty=args.uncertainty,
-            point_maps=not args.no_point_maps)
+            point_maps=not args.no_point_maps, estimator=args.estimator)
     except ValueError as e:
         print(f"bijcr calibrate: {e}", file=sys.stderr)
         return 2
-    scene = load_scene(args.scene)
-    log(f"loaded scene '{scene.name}'")
-    result = calibrate(scene, method=args.method, options=opts, progress=log)
-    pm = result.info.get("point_maps")
-    log(f"joint solve in {result.info['time_total_s']:.3f} s" +
-        (f", point-map refinement in {pm['time_s']:.1f} s" if pm else ""))
-    files = write_outputs(Path(args.out), scene, result, conf_threshold=args.conf_threshold,
-                          figure=not args.no_figure, log=log)
-    if not args.quiet:
-        print("\n".join(summary(result, scene)))
-        for w in result.warnings:
-            print(f"warning: {w}")
-        if scene.ground_truth is not None:
-            model = scene.reconstruction.model if scene.reconstruction is not None else None
-            print("\n".join(evaluation_lines(result, scene.ground_truth, model)))
-        print("wrote " + ", ".join(sorted(files)) + f" in {args.out}")
-    else:
+    st = calibrate_stage(args.scene, args.out, method=args.method, options=opts,
+                         conf_threshold=args.conf_threshold, figure=not args.no_figure, log=log)
+    if args.quiet:
         print(args.out)
+        return 0
+    print("\n".join(report_lines(st)))
+    print("wrote " + ", ".join(sorted(st.files)) + f" in {args.out}")
     return 0
+
+
+def report_lines(st) -> list[str]:
+    """The summary, warnings and (with ground truth) evaluation lines of a calibration stage's result."""
+    scene, result = st.scene, st.result
+    lines = summary(result, scene) + [f"warning: {w}" for w in result.warnings]
+    if scene.ground_truth is not None:
+        model = scene.reconstruction.model if scene.reconstruction is not None else None
+        lines += evaluation_lines(result, scene.ground_truth, model)
+    return lines

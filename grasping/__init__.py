@@ -11,6 +11,7 @@ Public API:
     scene_cloud(points, labels) / load_cloud / load_segments / load_calibration / b2b_sigma / resolve_inputs
     write_grasps_json(path, plan) / plan_to_dict(plan) / draw_plan(path, plan, points, labels)
     rotate_about_approach(T_b_g)                        the same grasp turned 180 degrees about z
+    grasp_stage(cloud, segments, out_dir, calibration=None, ...) -> GraspStage   (bijcr grasp / run)
 CLI: ``bijcr grasp SCENE_DIR_OR_CLOUD --segments DIR/segments.npz --out DIR [--calibration calibration.json]``.
 """
 
@@ -26,6 +27,7 @@ from ._output import draw_plan, plan_to_dict, write_grasps_json
 from ._plan import GraspPlan, ObjectPlan, PlanParams, plan_grasps
 from ._push import PushParams, push_contacts
 from ._reach import ArmReach, ReachFilter, ReachResult, callable_filter, pregrasp_pose
+from ._stage import GraspStage, grasp_stage
 
 __all__ = [
     "load_gripper", "GripperModel", "GripperShape",
@@ -37,5 +39,5 @@ __all__ = [
     "GripperCollider", "SceneOctree", "grippers_collide", "grippers_distance",
     "SceneCloud", "scene_cloud", "load_cloud", "load_segments", "load_calibration", "b2b_sigma", "resolve_inputs",
     "ObjectGeometry", "Support", "estimate_support", "object_geometry", "check_graspable",
-    "plan_to_dict", "write_grasps_json", "draw_plan",
+    "plan_to_dict", "write_grasps_json", "draw_plan", "grasp_stage", "GraspStage",
 ]

@@ -10,6 +10,7 @@ Public API:
     MaskViews: per-image masks carried into b1 through a scene's point maps (``mask_ids=`` of segment).
     read_cloud(path) -> (points, colors, normals); write_segments(out_dir, result, points, source)
     read_calibration(path) -> (T_b1_w, scale, T_b1_b2 or None)
+    segment_stage(cloud_path, out_dir, calibration=None, masks=None, ...) -> SegmentStage  (bijcr segment / run)
 CLI: ``bijcr segment CLOUD --out DIR [--masks SCENE]``. See docs/segmentation.md.
 """
 
@@ -17,8 +18,9 @@ from ._io import read_cloud, write_segments
 from ._masks import MaskViews, read_calibration
 from ._params import SegmentParams
 from ._pipeline import SegmentResult, segment
+from ._stage import SegmentStage, segment_stage
 from ._summary import ObjectSummary
 from ._table import TablePlane
 
 __all__ = ["segment", "SegmentParams", "SegmentResult", "ObjectSummary", "TablePlane", "MaskViews",
-           "read_cloud", "write_segments", "read_calibration"]
+           "read_cloud", "write_segments", "read_calibration", "segment_stage", "SegmentStage"]

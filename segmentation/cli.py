@@ -30,18 +30,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
-    import numpy as np
-
     from bimanual_app.io_utils import InputError, Problem
 
-    from . import SegmentParams, read_cloud, segment
-    from ._io import format_table, write_segments
-    from ._masks import MaskViews, read_calibration
+    from . import SegmentParams
+    from ._stage import segment_stage
 
-    cloud = Path(args.cloud)
-    points, colors, normals = read_cloud(cloud)
     params = SegmentParams()
     if args.voxel is not None:
         if not (0.0005 <= args.voxel <= 0.1):
@@ -51,31 +44,21 @@ def run(args: argparse.Namespace) -> int:
         if not args.max_height > 0:
             raise InputError(Problem("--max-height", "", "must be positive", "give a height in metres"))
         params = params.with_(max_height=args.max_height)
-
-    calib_path = Path(args.calibration) if args.calibration else cloud.parent / "calibration.json"
-    calib = read_calibration(calib_path) if (args.calibration or calib_path.is_file()) else None
-    bases = None
-    if not args.keep_bases:
-        bases = [np.zeros(3)]
-        if calib is not None and calib[2] is not None:
-            bases.append(calib[2][:3, 3])
-    masks = None
-    if args.masks:
-        if calib is None:
-            raise InputError(Problem(str(calib_path), "", "--masks needs the calibration that maps the scene's point "
-                                     "maps into b1", "give --calibration DIR/calibration.json (from bijcr calibrate)"))
-        masks = MaskViews.from_scene(args.masks, calib[0], calib[1])
-        if not args.quiet:
-            print(f"masks: {len(masks)} views of {args.masks}")
-
-    result = segment(points, colors, normals, mask_ids=masks, params=params, bases=bases, source=str(cloud),
-                     progress=not args.quiet)
-    paths = write_segments(args.out, result, points, source=str(cloud), plot=not args.no_plot)
+    st = segment_stage(args.cloud, args.out, calibration=args.calibration, masks=args.masks, params=params,
+                       keep_bases=args.keep_bases, plot=not args.no_plot, progress=not args.quiet)
     if not args.quiet:
-        t = result.table
-        print(f"{cloud}: {len(points)} points, table {t.extent[0]:.2f} x {t.extent[1]:.2f} m, "
-              f"{len(result.objects)} objects ({result.timings['total']:.2f} s)")
-        if result.objects:
-            print(format_table(result))
-        print("wrote " + ", ".join(str(p) for p in paths.values()))
+        print("\n".join(report_lines(st)))
     return 0
+
+
+def report_lines(st) -> list[str]:
+    """The summary lines of a segmentation stage's result (masks used, table, objects, files)."""
+    from ._io import format_table
+
+    res, t = st.result, st.result.table
+    lines = [f"masks: {st.mask_views} views"] if st.mask_views else []
+    lines.append(f"{st.cloud}: {len(st.points)} points, table {t.extent[0]:.2f} x {t.extent[1]:.2f} m, "
+                 f"{len(res.objects)} objects ({res.timings['total']:.2f} s)")
+    if res.objects:
+        lines.append(format_table(res))
+    return lines + ["wrote " + ", ".join(str(p) for p in st.paths.values())]

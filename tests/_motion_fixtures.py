@@ -77,9 +77,17 @@ def write_reach_scene(root, cloud: np.ndarray | None = None, calibration: bool =
     if calibration:
         cal = root / "scene" / "calibration"
         cal.mkdir(parents=True, exist_ok=True)
+        gt, rec, scale = scene.ground_truth, scene.reconstruction, scene.ground_truth.scale or 0.7
+        T_b1_w = np.eye(4)
+        if rec is not None:  # the true calibration of this capture (`bijcr reach` checks it belongs to it)
+            rows, rec_rows = rec.rows_for(scene.primary.index, scene.primary.images)
+            P = np.array(rec.T_w_c[rec_rows[0]], dtype=np.float64)
+            P[:3, 3] *= scale
+            T_b1_w = scene.primary.T_b_e[rows[0]] @ gt.T_e1_c1 @ np.linalg.inv(P)
         (cal / "calibration.json").write_text(json.dumps({
-            "format": 1, "scene": scene.name, "scale": 0.7, "T_e1_c1": np.eye(4).tolist(), "T_e2_c2": np.eye(4).tolist(),
-            "T_b1_w": np.eye(4).tolist(), "T_b2_w": np.eye(4).tolist(), "T_b1_b2": T_b1_b2.tolist(),
+            "format": 1, "scene": scene.name, "scale": scale, "T_e1_c1": gt.T_e1_c1.tolist(),
+            "T_e2_c2": gt.T_e2_c2.tolist(), "T_b1_w": T_b1_w.tolist(),
+            "T_b2_w": (np.linalg.inv(T_b1_b2) @ T_b1_w).tolist(), "T_b1_b2": T_b1_b2.tolist(),
             "views_used": {"primary": 3, "secondary": 3}, "residuals": {"rotation_rad": 0.0, "translation_m": 0.0}}))
         pc = o3d.geometry.PointCloud()
         pc.points = o3d.utility.Vector3dVector(table_cloud(spacing=0.012)[0] if cloud is None else cloud)

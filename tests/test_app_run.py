@@ -5,9 +5,11 @@ import json
 import re
 import shutil
 import subprocess
+from functools import partial
 
 import pytest
 
+from bimanual_app.app import stages as S
 from bimanual_app.app.pipeline import Stage, fingerprint, run_stages
 from bimanual_app.cli import main as bijcr
 from bimanual_app.synth import make_synthetic_scene
@@ -65,13 +67,40 @@ def test_failing_stage_is_named_and_earlier_results_kept(scene, tmp_path):
     shutil.rmtree(broken / "primary" / "images")  # neither images nor a reconstruction: calibrate cannot run
     out = tmp_path / "out"
     cal = out / "calibration"
-    stages = [Stage("check", ["check", str(scene)], [], []),
-              Stage("calibrate", ["calibrate", str(broken), "--out", str(cal)], [], [cal / "calibration.json"]),
-              Stage("segment", ["segment", str(cal / "scene_b1.ply"), "--out", str(out / "seg")], [], [])]
+    stages = [Stage("check", lambda log: log("checked"), [], []),
+              Stage("calibrate", partial(S.calibrate, broken, cal), [], [cal / "calibration.json"]),
+              Stage("segment", partial(S.segment, cal / "scene_b1.ply", out / "seg", cal / "calibration.json", None),
+                    [], [])]
     records = run_stages(stages, out / ".stages")
     assert [r.status for r in records] == ["ran", "failed", "skipped"]
-    assert "calibrate" in records[1].message and "exited with code 1" in records[1].message
+    assert "reconstruction.npz" in records[1].message and "bijcr reconstruct" in records[1].message
+    assert records[1].message in records[1].log and records[0].log == "checked"
     assert not (cal / "calibration.json").exists()
+
+
+def test_ctrl_c_in_a_task_stops_the_whole_run(scene, tmp_path, monkeypatch, capsys):
+    """Ctrl-C during a task stage ends `bijcr run` at once with exit code 130: the next task does not start,
+    no report claims a finished run, the finished stages keep their results and records, and the
+    interrupted stage leaves no result or record."""
+    import bimanual_app.tasks._run as task_run
+
+    started = []
+
+    def interrupted(opts):
+        started.append(opts.task)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(task_run, "run_task", interrupted)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "report.html").write_text("an earlier run's report")  # no longer describes what is in OUT
+    rc = bijcr(["run", str(scene), "--out", str(out), "--skip", "grasp"])
+    assert rc == 130 and started == ["joint-grasp"]
+    assert "interrupted" in capsys.readouterr().err
+    assert not (out / "report.html").exists()
+    assert (out / ".stages" / "calibrate.json").exists() and (out / ".stages" / "segment.json").exists()
+    assert (out / "calibration" / "calibration.json").exists() and (out / "segments" / "segments.npz").exists()
+    assert not (out / ".stages" / "joint-grasp.json").exists() and not (out / "tasks").exists()
 
 
 _PROBE = """<script>
@@ -134,3 +163,53 @@ def test_report_grasps_table_reads_grasps_json(tmp_path):
     html = _grasps_section(tmp_path)
     assert "<td>0</td><td>joint</td><td>none</td><td>2 (0.80)</td><td>no</td><td>object is 113 mm across</td>" in html
     assert "<td>1</td><td>single</td><td>2 (0.90)</td><td>none</td><td>yes (0.70)</td>" in html
+
+
+def test_report_says_what_the_task_used_tried_and_lacks(tmp_path):
+    """The task section names the alternative hand-over it used, lists the failed previews before the one that
+    passed with their reasons, shows the ground-truth evaluation; absent masks / ground truth are said."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from bimanual_app.app.report import write_report
+
+    eye = np.eye(4).tolist()
+    (tmp_path / "calibration").mkdir()
+    (tmp_path / "calibration" / "calibration.json").write_text(json.dumps(
+        {"T_e1_c1": eye, "T_e2_c2": eye, "T_b1_b2": eye, "scale": 1.0, "uncertainty": {}}))
+    (tmp_path / "segments").mkdir()
+    (tmp_path / "segments" / "segments.json").write_text(json.dumps({"objects": []}))
+    d = tmp_path / "tasks" / "handover"
+    d.mkdir(parents=True)
+    (d / "task.json").write_text(json.dumps({
+        "success": True, "reason": "preview passed: held", "object": 3,
+        "object_reason": "object 3 has the best-scoring hand-over (score 0.64; the only candidate)",
+        "plan": {"info": {"candidate": {"grasps_json": "objects[3].handover_alternatives[1]", "score": 0.64}}},
+        "previews_tried": [{"object": 3, "candidate_rank": 0, "success": False, "reason": "the object fell"},
+                           {"object": 3, "candidate_rank": 1, "success": True, "reason": "held"}]}))
+    T = np.eye(4)
+    T[0, 3] = 0.002
+    gt = SimpleNamespace(T_e1_c1=T, T_e2_c2=np.eye(4), T_b1_b2=np.eye(4), scale=1.0)
+    with_gt = SimpleNamespace(path=tmp_path / "scene", ground_truth=gt, reconstruction=SimpleNamespace(model="synthetic"))
+    page = write_report(tmp_path, "s", [], [], scene=with_gt).read_text()
+    assert "objects[3].handover_alternatives[1]" in page and "an alternative" in page
+    assert "the object fell" in page and "failed" in page
+    assert "Against ground_truth.yaml" in page and "<td>T_e1_c1</td><td>0.000°</td><td>2.00 mm</td>" in page
+    assert "Per-image masks: absent" in page
+    assert "(score 0.64; the only candidate)</p>" in page and "candidate))" not in page
+    bare = SimpleNamespace(path=tmp_path / "scene", ground_truth=None, reconstruction=None)
+    page = write_report(tmp_path, "s", [], [], scene=bare).read_text()
+    assert "Ground truth: absent" in page
+
+
+def test_object_reason_has_balanced_parentheses():
+    """The free-form hand-over reason closed a parenthesis it never opened."""
+    from types import SimpleNamespace
+
+    from bimanual_app.tasks._grasps import choose
+
+    c = lambda oid, score, free: SimpleNamespace(object_id=oid, score=score,  # noqa: E731
+                                                 info={"free_form": free, "shape": "free-form" if free else "box"})
+    _, why = choose([c(1, 0.5, False), c(2, 0.9, True)], None, "handover", "g.json", [1, 2])
+    assert why.count("(") == why.count(")"), why

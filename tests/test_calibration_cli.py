@@ -208,3 +208,52 @@ def test_scale_is_compared_with_the_ground_truth_only_for_the_synthetic_reconstr
     lines = evaluation_lines(res, gt, "colmap")
     assert any("scale: not compared" in ln and "'colmap'" in ln for ln in lines)
     assert not any("%" in ln for ln in lines)
+
+
+def test_undeterminable_offset_is_reported_unbounded(tmp_path, capsys):
+    """Rotations about one axis leave the camera offset along it free: its sigma has no bound (not millimetres)."""
+    cap = make_capture(seed=26, views=5, noise="low")
+    E = np.stack([cap.T_b1_e[0] @ make_T(Rotation.from_rotvec([0, 0, 0.3 * k]).as_matrix(), [0.02 * k, 0, 0])
+                  for k in range(5)])
+    P = np.linalg.inv(cap.T_b1_w) @ E @ cap.T_e1_c1
+    P[:, :3, 3] /= cap.scale
+    cap.T_b1_e, cap.T_w_c1 = E, P
+    root = write_capture_scene(cap, tmp_path / "degen")
+    out = tmp_path / "o"
+    assert main(["calibrate", str(root), "--out", str(out), "--allow-degenerate", "--no-figure"]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("T_e1_c1"))
+    assert "unbounded" in line, line
+    u = json.loads((out / "calibration.json").read_text())["uncertainty"]
+    sig = u["T_e1_c1"]["translation_mm"]
+    assert np.isinf(sig[2]) and np.isfinite(sig[0]) and np.isfinite(sig[1])  # along the rotation axis only
+    assert np.all(np.isfinite(u["T_e2_c2"]["translation_mm"]))  # the other arm's motions determine its offset
+    assert np.isinf(u["T_b1_b2"]["translation_norm_mm"])
+
+
+@pytest.mark.parametrize("views, still", [((2, 5), False), (5, True)])
+def test_check_runs_the_checks_calibrate_runs(tmp_path, capsys, views, still):
+    """`bijcr check` refuses what `bijcr calibrate` refuses (too few views; an arm that does not move)."""
+    cap = make_capture(seed=27, views=views, noise="none")
+    if still:  # the primary never moves: every view from the same pose
+        cap.T_b1_e = np.stack([cap.T_b1_e[0]] * len(cap.T_b1_e))
+        cap.T_w_c1 = np.stack([cap.T_w_c1[0]] * len(cap.T_w_c1))
+    root = write_capture_scene(cap, tmp_path / "s")
+    assert main(["calibrate", str(root), "--out", str(tmp_path / "o")]) == 1
+    capsys.readouterr()
+    assert main(["check", str(root)]) == 1
+    out = capsys.readouterr().out
+    assert "OK" not in out.splitlines()
+    assert ("at least 3" in out) if not still else ("rotates at most" in out)
+    assert "bijcr calibrate" in out and "fix:" in out
+
+
+def test_paper_method_without_torch_names_the_extra(tiny_scene, tmp_path, capsys, monkeypatch):
+    """torch is the optional extra [paper]: without it, --method paper stops at once and says how to get it."""
+    import sys
+
+    _, root = tiny_scene
+    monkeypatch.setitem(sys.modules, "torch", None)  # `import torch` raises ImportError
+    assert main(["calibrate", str(root), "--out", str(tmp_path / "o"), "--method", "paper"]) == 1
+    err = capsys.readouterr().err
+    assert "pip install -e .[paper]" in err and "--method" in err
+    assert not (tmp_path / "o").exists()

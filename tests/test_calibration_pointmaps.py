@@ -91,7 +91,7 @@ def test_unusable_point_maps_leave_the_joint_solve_as_it_was(paper_scene):
 
 
 def test_refinement_needs_two_views_per_arm():
-    from calibration._pointmaps import PointMapView, refine_with_point_maps
+    from calibration._pointmap_refine import PointMapView, refine_with_point_maps
 
     pts = np.random.default_rng(1).uniform(-0.1, 0.1, (100, 3)) + [0, 0, 0.5]
     nrm = np.tile([0.0, 0.0, -1.0], (100, 1))
@@ -139,7 +139,7 @@ def test_cli_writes_the_refinement_and_can_skip_it(paper_scene, tmp_path, capsys
 
 
 def test_analytic_jacobian_matches_finite_differences():
-    from calibration._pointmaps import PointMapView, _jacobian, _Pairs, _residuals
+    from calibration._pointmap_refine import PointMapView, _jacobian, _Pairs, _residuals
 
     rng = np.random.default_rng(0)
     views = []
@@ -162,7 +162,7 @@ def test_analytic_jacobian_matches_finite_differences():
 
 
 def test_maps_a_pinhole_does_not_fit_are_matched_by_nearest_neighbour(paper_scene, monkeypatch):
-    import calibration._pointmaps as pm
+    import calibration._pointmap_refine as pm
     from bimanual_app.scene import load_scene
     from calibration import CalibrationOptions, calibrate, scene_cloud
 

@@ -87,3 +87,17 @@ def test_reach_needs_a_calibration(tmp_path, capsys):
     assert rc == 1 and "no points" in err
     rc = main(["reach", str(scene), "--to", "0.3,0,0.1", "--calibration", str(tmp_path / "nope.json")])
     assert rc == 1 and "not found" in capsys.readouterr().err
+
+
+def test_reach_refuses_a_calibration_of_another_scene(scene_dir, tmp_path, capsys):
+    """The same check as `bijcr task`: a calibration made for another scene is refused, naming both."""
+    data = json.loads((scene_dir / "calibration" / "calibration.json").read_text())
+    foreign = tmp_path / "other" / "calibration.json"
+    foreign.parent.mkdir()
+    foreign.write_text(json.dumps(dict(data, scene="another-scene")))
+    (foreign.parent / "scene_b1.ply").write_bytes((scene_dir / "calibration" / "scene_b1.ply").read_bytes())
+    rc = main(["reach", str(scene_dir), "--to", "0.3,0,0.1", "--calibration", str(foreign),
+               "--out", str(tmp_path / "o"), "--no-preview"])
+    err = capsys.readouterr().err
+    assert rc == 1 and "'another-scene'" in err and "calibrate this scene" in err, err
+    assert not (tmp_path / "o").exists()

@@ -184,3 +184,18 @@ def test_setup_check_reports_limits_and_collisions(piper, setup):
     assert any("joint1" in p and "outside" in p for p in setup.check({"primary": q0, "secondary": bad}))
     q_box = setup.ik("primary", down_pose(BOX_CENTER + np.array([0, 0, BOX_HALF[2] - 0.06]))).q
     assert any("scene map" in p for p in setup.check({"primary": q_box, "secondary": q0}))
+
+
+def test_ompl_plans_alike_whatever_ran_before(piper, setup):
+    """OMPL is seeded per query from its inputs: the same query gives the same path after other queries
+    (one process running every stage plans as a fresh one does)."""
+    q0 = default_ready(piper)
+    q_now = {"primary": q0, "secondary": q0}
+    a = setup.ik("primary", down_pose([0.32, -0.16, 0.05])).q
+    b = setup.ik("primary", down_pose([0.32, 0.16, 0.05])).q
+    space = setup.space(["primary"], q_now)
+    first = plan_path(space, a, b[None], timeout=2.0, seed=3)
+    other = plan_path(space, b, a[None], timeout=2.0, seed=5)  # OMPL draws random numbers in between
+    again = plan_path(space, a, b[None], timeout=2.0, seed=3)
+    assert first.method == other.method == again.method == "rrtconnect"
+    np.testing.assert_array_equal(first.path, again.path)

@@ -238,7 +238,7 @@ def test_handover_moves_a_secondary_in_the_way_aside_during_the_transfer():
     robot, motion, choice, obj, up = _handover_fixture()
     # the secondary stands with its gripper where the receiver grasp will be, closed
     q_start = {"primary": default_ready(robot), "secondary": choice.receiver.q}
-    assert not motion.valid(q_start)
+    assert not motion.problems(q_start)
     plan = plan_handover(motion, choice, q_start, {"primary": 0.0, "secondary": 0.0}, obj, up=up)
     transfer = next(p for p in plan.phases if p.name == "transfer")
     assert set(transfer.trajectories) == {"primary", "secondary"} and "out of its way" in transfer.note
@@ -289,7 +289,7 @@ def test_handover_primary_stays_backed_off_when_its_start_is_where_the_object_is
     T_in = choice.giver_transfer.T_b1_g.copy()
     T_in[:3, 3] += 0.04 * T_in[:3, 2]
     q_start = {"primary": motion.ik("primary", T_in, choice.giver_transfer.q)[0], "secondary": default_ready(robot)}
-    assert not motion.valid(q_start)
+    assert not motion.problems(q_start)
     plan = plan_handover(motion, choice, q_start, {"primary": 0.0, "secondary": 0.0}, obj, up=up)
     names = [p.name for p in plan.phases]
     assert "home" not in names and names[-2:] == ["retreat", "hold"]
@@ -382,8 +382,8 @@ def test_handover_secondary_in_the_primarys_way_turns_aside_first():
     q_p = default_ready(robot)
     q_s = np.array([0.24, 1.923, -1.155, 0.0, 0.0, 0.0])  # leaning over the primary's way in
     q_pre = motion.ik("primary", _pre(motion, choice.pick), q_p)[0]
-    assert not motion.valid({"primary": q_p, "secondary": q_s})  # a valid start ...
-    assert any("secondary" in w for w in motion.valid({"primary": q_pre, "secondary": q_s}))  # ... in the way
+    assert not motion.problems({"primary": q_p, "secondary": q_s})  # a valid start ...
+    assert any("secondary" in w for w in motion.problems({"primary": q_pre, "secondary": q_s}))  # ... in the way
     plan = plan_handover(motion, choice, {"primary": q_p, "secondary": q_s}, {"primary": 0.0, "secondary": 0.0},
                          obj, up=up)
     names = [p.name for p in plan.phases]
@@ -431,3 +431,24 @@ def test_joint_lift_falls_back_to_the_least_lift_at_the_top_of_the_reach(monkeyp
     assert plan.info["object_motion"]["lift_m"] == pytest.approx(LIFT_MIN) and LIFT_MIN >= 0.105
     with pytest.raises(PlanFailure, match="leaves its reach"):
         plan_with_reach_up_to(0.10)
+
+
+def test_giver_retreat_with_a_short_pre_grasp_is_a_plan_failure_with_a_reason():
+    """A pre-grasp nearer than the least back-off gives a PlanFailure naming why (it was a TypeError)."""
+    from bimanual_app.tasks._grasps import GraspSpec
+    from bimanual_app.tasks._motion import PlanFailure
+    from bimanual_app.tasks._planners import _giver_retreat
+
+    gt = GraspSpec("primary", np.eye(4), 0.05, pre_dist=0.03)
+    q = {"primary": np.zeros(6), "secondary": np.zeros(6)}
+    with pytest.raises(PlanFailure) as e:
+        _giver_retreat(None, gt, q, ("secondary", q["secondary"], np.zeros((1, 3))), np.array([0, 0, 1.0]),
+                       {"primary": 0.05, "secondary": 0.0})
+    assert "3.0 cm" in e.value.message and "back off" in e.value.message
+
+
+def test_task_motion_names_its_problem_list_problems():
+    """TaskMotion.problems(q) lists problems ([] when free); no valid() that is truthy when invalid."""
+    from bimanual_app.tasks import TaskMotion
+
+    assert callable(TaskMotion.problems) and not hasattr(TaskMotion, "valid")

@@ -1,18 +1,19 @@
 """Run the stages of the product one after another, with caching, timing and a failure record.
 
-Each stage is a ``bijcr`` sub-command run in-process (so a stage behaves exactly as when a user runs it
-by hand) plus the list of files it reads and writes. A stage is skipped when its outputs exist and the
-fingerprint of its inputs and arguments matches the one recorded when it last succeeded
-(``DIR/.stages/NAME.json``). A failing stage stops the run, keeps everything the earlier stages
-produced, and is recorded with its error so the report can say which stage failed and why.
+Each stage is a library call (``calibrate_stage``, ``segment_stage``, ``grasp_stage``, ``run_task``, ...:
+the very functions the ``bijcr`` sub-commands call) plus the list of files it reads and writes. A stage is
+skipped when its outputs exist and the fingerprint of its inputs and arguments matches the one recorded
+when it last succeeded (``DIR/.stages/NAME.json``). A failing stage stops the run, keeps everything the
+earlier stages produced, and is recorded with its error so the report can say which stage failed and why.
+Ctrl-C (KeyboardInterrupt) is never a stage's failure: it stops the whole run at once, leaving the
+finished stages' results and records, and no record for the interrupted stage.
 """
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
-import io
 import json
+import sys
 import time
 import traceback
 from dataclasses import dataclass, field
@@ -21,7 +22,13 @@ from typing import Callable
 
 from bimanual_app.io_utils import InputError, write_json
 
-__all__ = ["Stage", "StageRecord", "run_stages", "fingerprint"]
+__all__ = ["Stage", "StageRecord", "StageFailure", "run_stages", "fingerprint"]
+
+Log = Callable[[str], None]
+
+
+class StageFailure(RuntimeError):
+    """A stage ran to its end without a usable result (e.g. a task whose physics preview failed)."""
 
 
 @dataclass
@@ -30,18 +37,20 @@ class Stage:
 
     Attributes:
         name: short name (``calibrate``).
-        argv: the ``bijcr`` arguments that run it (``["calibrate", SCENE, "--out", DIR]``).
+        run: does the stage's work; gets a log function for its progress lines. Raises InputError (bad
+            input), StageFailure (no usable result) or another exception (a bug).
         inputs: files (or folders) whose content decides whether a cached result is still valid.
         outputs: files that must all exist for the stage to count as done.
+        key: the stage's arguments (e.g. the command line it equals), part of the fingerprint.
         optional: when True, a failure is recorded as a warning and the run continues.
     """
 
     name: str
-    argv: list[str]
+    run: Callable[[Log], object]
     inputs: list[Path]
     outputs: list[Path]
+    key: list[str] = field(default_factory=list)
     optional: bool = False
-    before: Callable[[], None] | None = None
 
 
 @dataclass
@@ -68,40 +77,60 @@ def _hash_path(h: "hashlib._Hash", p: Path) -> None:
         h.update(b"<missing>")
 
 
-def fingerprint(inputs: list[Path], argv: list[str]) -> str:
+def fingerprint(inputs: list[Path], key: list[str]) -> str:
     """SHA-256 over the inputs' contents and the stage's arguments."""
     h = hashlib.sha256()
-    h.update(json.dumps(argv).encode())
+    h.update(json.dumps(key).encode())
     for p in inputs:
         h.update(str(p).encode())
         _hash_path(h, Path(p))
     return h.hexdigest()
 
 
-class _Tee(io.TextIOBase):
-    """Write to the terminal and keep a copy for the report."""
+def _cached(st: Stage, stamp_path: Path, fp: str) -> StageRecord | None:
+    """The record of a stage whose outputs exist and whose fingerprint is the one it last succeeded with."""
+    try:
+        old = json.loads(stamp_path.read_text()) if stamp_path.exists() else {}
+    except json.JSONDecodeError:
+        old = {}
+    if old.get("fingerprint") != fp or not all(Path(o).exists() for o in st.outputs):
+        return None
+    return StageRecord(st.name, "cached", old.get("seconds", 0.0), "inputs unchanged: reused", old.get("log", ""),
+                       [str(o) for o in st.outputs])
 
-    def __init__(self, *streams):
-        self.streams = streams
 
-    def write(self, s):
-        for st in self.streams:
-            st.write(s)
-        return len(s)
+def _run_one(st: Stage) -> StageRecord:
+    """Run one stage; its progress lines go to stderr and into the record. KeyboardInterrupt propagates."""
+    lines: list[str] = []
 
-    def flush(self):
-        for st in self.streams:
-            st.flush()
+    def log(msg: str) -> None:
+        print(msg, file=sys.stderr, flush=True)
+        lines.append(msg)
+
+    t0 = time.perf_counter()
+    status, message = "ran", ""
+    try:
+        st.run(log)
+        missing = [str(o) for o in st.outputs if not Path(o).exists()]
+        if missing:
+            status, message = "failed", f"finished but did not write {', '.join(missing)}"
+    except (InputError, StageFailure) as e:
+        status, message = "failed", "; ".join(str(e).splitlines())
+        lines.append(str(e))
+    except Exception as e:  # a stage's bug must not lose the earlier stages' results
+        status, message = "failed", f"{type(e).__name__}: {e}"
+        lines.append(traceback.format_exc())
+    log_text = "\n".join(lines)[-20000:]
+    return StageRecord(st.name, status, time.perf_counter() - t0, message, log_text, [str(o) for o in st.outputs])
 
 
 def run_stages(stages: list[Stage], state_dir: Path, force: bool = False,
                on_start: Callable[[Stage, int, int], None] | None = None,
                on_end: Callable[[StageRecord], None] | None = None) -> list[StageRecord]:
-    """Run ``stages`` in order; returns one record per stage (failed / skipped ones included)."""
-    import sys
+    """Run ``stages`` in order; returns one record per stage (failed / skipped ones included).
 
-    from bimanual_app.cli import main as cli_main
-
+    KeyboardInterrupt is not caught: the stages finished before it keep their outputs and records.
+    """
     state_dir.mkdir(parents=True, exist_ok=True)
     records: list[StageRecord] = []
     failed = False
@@ -112,51 +141,16 @@ def run_stages(stages: list[Stage], state_dir: Path, force: bool = False,
         if on_start:
             on_start(st, k, len(stages))
         stamp_path = state_dir / f"{st.name}.json"
-        fp = fingerprint(st.inputs, st.argv)
-        try:
-            old = json.loads(stamp_path.read_text()) if stamp_path.exists() else {}
-        except json.JSONDecodeError:
-            old = {}
-        if not force and old.get("fingerprint") == fp and all(Path(o).exists() for o in st.outputs):
-            rec = StageRecord(st.name, "cached", old.get("seconds", 0.0), "inputs unchanged: reused",
-                              old.get("log", ""), [str(o) for o in st.outputs])
-            records.append(rec)
-            if on_end:
-                on_end(rec)
-            continue
-        buf = io.StringIO()
-        t0 = time.perf_counter()
-        status, message = "ran", ""
-        try:
-            if st.before:
-                st.before()
-            with contextlib.redirect_stdout(_Tee(sys.stdout, buf)), contextlib.redirect_stderr(_Tee(sys.stderr, buf)):
-                rc = cli_main(st.argv)
-            if rc != 0:
-                # the last line a command prints is its one-line verdict; the whole log goes to the report
-                tail = [l.strip() for l in buf.getvalue().strip().splitlines() if l.strip()][-1:]
-                status, message = "failed", (f"'bijcr {st.argv[0]}' exited with code {rc}"
-                                             + (": " + tail[0][:400] if tail else ""))
-            else:
-                missing = [str(o) for o in st.outputs if not Path(o).exists()]
-                if missing:
-                    status, message = "failed", f"finished but did not write {', '.join(missing)}"
-        except InputError as e:
-            status, message = "failed", str(e)
-        except Exception as e:  # a stage's bug must not lose the earlier stages' results
-            status, message = "failed", f"{type(e).__name__}: {e}"
-            buf.write(traceback.format_exc())
-        dt = time.perf_counter() - t0
-        rec = StageRecord(st.name, status, dt, message, buf.getvalue()[-20000:], [str(o) for o in st.outputs])
-        records.append(rec)
-        if status == "ran":
-            write_json(stamp_path, {"fingerprint": fp, "seconds": dt, "log": rec.log})
-        else:
-            stamp_path.unlink(missing_ok=True)
-            if not st.optional:
+        fp = fingerprint(st.inputs, st.key)
+        rec = None if force else _cached(st, stamp_path, fp)
+        if rec is None:
+            stamp_path.unlink(missing_ok=True)  # a stage run now is valid only once it has succeeded
+            rec = _run_one(st)
+            if rec.status == "ran":
+                write_json(stamp_path, {"fingerprint": fp, "seconds": rec.seconds, "log": rec.log})
+            elif not st.optional:
                 failed = True
-            else:
-                rec.status = "failed"
+        records.append(rec)
         if on_end:
             on_end(rec)
     return records

@@ -39,6 +39,8 @@ def _embed(path: Path, caption: str) -> str:
 
 
 def _fmt(v, unit: str = "", digits: int = 3) -> str:
+    if isinstance(v, float) and math.isinf(v) and v > 0:  # a sigma the views do not determine
+        return "unbounded"
     if isinstance(v, (int, float)) and math.isfinite(v):
         return f"{v:.{digits}f}{unit}"
     return html.escape(str(v))
@@ -51,7 +53,31 @@ def _json(path: Path) -> dict | None:
         return None
 
 
-def _calibration_section(d: Path) -> str:
+def _evaluation(cal: dict, scene) -> str:
+    """The calibration against the scene's ground_truth.yaml (as `bijcr calibrate` prints it), or a note
+    that the scene has none."""
+    gt = getattr(scene, "ground_truth", None)
+    if gt is None:
+        return "<p>Ground truth: absent (a real capture): no evaluation.</p>"
+    import numpy as np
+
+    from calibration._evaluate import calibration_errors
+
+    try:
+        e = calibration_errors(*(np.array(cal[k], dtype=np.float64) for k in ("T_e1_c1", "T_e2_c2")),
+                               float(cal["scale"]), np.array(cal["T_b1_b2"], dtype=np.float64), gt)
+    except (KeyError, TypeError, ValueError) as err:
+        return f"<p>Ground truth present, but the calibration cannot be compared with it ({html.escape(str(err))}).</p>"
+    rows = "".join(f"<tr><td>{k}</td><td>{e[k][0]:.3f}°</td><td>{e[k][1]:.2f} mm</td></tr>"
+                   for k in ("T_e1_c1", "T_e2_c2", "T_b1_b2"))
+    rec = getattr(scene, "reconstruction", None)
+    if e["scale_percent"] is not None and getattr(rec, "model", "synthetic") == "synthetic":
+        rows += f"<tr><td>scale</td><td colspan=2>{e['scale_percent']:.3f} %</td></tr>"
+    return ("<p><b>Against ground_truth.yaml</b> (evaluation only; the solver never reads it):</p>"
+            "<table><tr><th>output</th><th>rotation error</th><th>translation error</th></tr>" + rows + "</table>")
+
+
+def _calibration_section(d: Path, scene=None) -> str:
     cal = _json(d / "calibration.json")
     if cal is None:
         return "<p>No calibration was produced.</p>"
@@ -92,9 +118,7 @@ def _calibration_section(d: Path) -> str:
                f"{_fmt(res.get('translation_m', float('nan')) * 1000, ' mm', 2)}. Method: {html.escape(str(cal.get('method', '?')))}.</p>")
     for w in cal.get("warnings", []) or []:
         out.append(f'<div class="warn">{html.escape(str(w))}</div>')
-    ev = cal.get("evaluation")
-    if isinstance(ev, dict):
-        out.append("<p><b>Against ground truth (evaluation only):</b> " + html.escape(json.dumps(ev)) + "</p>")
+    out.append(_evaluation(cal, scene))
     out.append(_embed(d / "calibration.png", "Both arms' end effectors and calibrated cameras in b1, and the metric cloud"))
     pm = (cal.get("info") or {}).get("point_maps") if isinstance(cal.get("info"), dict) else None
     if isinstance(pm, dict):
@@ -109,7 +133,7 @@ def _calibration_section(d: Path) -> str:
     return "\n".join(out)
 
 
-def _segments_section(d: Path) -> str:
+def _segments_section(d: Path, scene=None) -> str:
     seg = _json(d / "segments.json")
     out = []
     if seg is not None:
@@ -123,7 +147,14 @@ def _segments_section(d: Path) -> str:
                            f"<td>{', '.join(_fmt(x, '', 3) for x in c)}</td><td>{' x '.join(_fmt(100 * x, '', 1) for x in e)}</td></tr>")
             out.append("</table>")
     out.append(_embed(d / "segments.png", "Segments from above and from the side"))
-    return "\n".join(out) or "<p>No segmentation was produced.</p>"
+    if seg is None and not (d / "segments.png").exists():
+        return "<p>No segmentation was produced.</p>"
+    if scene is not None:
+        from .stages import scene_has_masks
+
+        out.append("<p>Per-image masks: " + ("used as extra evidence.</p>" if scene_has_masks(scene.path) else
+                                            "absent in the scene: segmented from the cloud alone.</p>"))
+    return "\n".join(out)
 
 
 def _grasps_section(d: Path) -> str:
@@ -155,7 +186,45 @@ def _grasps_section(d: Path) -> str:
     return "\n".join(out) or "<p>No grasps were produced.</p>"
 
 
-def _task_section(d: Path, name: str) -> str:
+def _candidate_used(t: dict) -> str:
+    """Which grasps.json entry the task's plan used, saying so when it is not the object's first one (the
+    grasps table shows the first)."""
+    c = ((t.get("plan") or {}).get("info") or {}).get("candidate")
+    if not isinstance(c, dict) or not c.get("grasps_json"):
+        return ""
+    src, score = str(c["grasps_json"]), _fmt(c.get("score"), "", 2)
+    first = src.endswith("].handover") or src.endswith(".joint_grasps[0]")
+    note = "" if first else (" – an alternative: the grasps table above shows the object's first candidate, "
+                             "which the task did not use (its plan or preview failed, or an alternative ranks first)")
+    return f"<p>Grasps used: <code>{html.escape(src)}</code> (score {score}){html.escape(note)}.</p>"
+
+
+def _previews_tried(t: dict) -> str:
+    """Every physics preview the task ran, in order, with its verdict and reason (failed ones included)."""
+    tried = [p for p in (t.get("previews_tried") or []) if isinstance(p, dict)]
+    if len(tried) < 2 and all(p.get("success") for p in tried):
+        return ""
+    rows = "".join(f"<tr><td>{k + 1}</td><td>{html.escape(str(p.get('object')))}</td>"
+                   f"<td>{html.escape(str(p.get('candidate_rank')))}</td>"
+                   f'<td class="{"ok" if p.get("success") else "fail"}">{"passed" if p.get("success") else "failed"}'
+                   f"</td><td>{html.escape(str(p.get('reason', '')))}</td></tr>" for k, p in enumerate(tried))
+    return ("<p>Physics previews tried (a failed one moves on to the next candidate):</p><table><tr><th>#</th>"
+            "<th>object</th><th>candidate</th><th>preview</th><th>reason</th></tr>" + rows + "</table>")
+
+
+def _truth_preview(t: dict, scene) -> str:
+    """The same plan in the ground-truth world (task.json ``preview_truth``), or why there is none."""
+    pt = t.get("preview_truth")
+    if isinstance(pt, dict):
+        ok = bool(pt.get("success"))
+        return (f'<p>The same plan against the ground truth (evaluation only): <span class="{"ok" if ok else "fail"}">'
+                f'{"success" if ok else "failure"}</span> – {html.escape(str(pt.get("reason", "")))}</p>')
+    if scene is not None and getattr(scene, "ground_truth", None) is None:
+        return "<p>Ground truth: absent: the plan is judged on the reconstruction only.</p>"
+    return ""
+
+
+def _task_section(d: Path, name: str, scene=None) -> str:
     t = _json(d / "task.json")
     out = []
     if t is not None:
@@ -165,7 +234,9 @@ def _task_section(d: Path, name: str) -> str:
                    f" – {html.escape(str(t.get('reason', t.get('message', ''))))}</p>")
         if t.get("object") is not None:
             why = str(t.get("object_reason", ""))
-            out.append(f"<p>Object {html.escape(str(t.get('object')))}" + (f" ({html.escape(why)})" if why else "") + "</p>")
+            out.append(f"<p>Object {html.escape(str(t.get('object')))}" + (f": {html.escape(why)}" if why else "")
+                       + "</p>")
+        out += [_candidate_used(t), _previews_tried(t), _truth_preview(t, scene)]
     for f in sorted(d.glob("*.gif")) + sorted(d.glob("*.mp4")):
         out.append(_embed(f, f"{name}: physics preview ({f.name})"))
     for f in sorted(d.glob("*.png")):
@@ -173,8 +244,10 @@ def _task_section(d: Path, name: str) -> str:
     return "\n".join(out) or f"<p>No {name} result.</p>"
 
 
-def write_report(out_dir: Path, scene_name: str, records: list[StageRecord], warnings: list[str]) -> Path:
-    """Write ``out_dir/report.html`` (atomic) and return its path."""
+def write_report(out_dir: Path, scene_name: str, records: list[StageRecord], warnings: list[str],
+                 scene=None) -> Path:
+    """Write ``out_dir/report.html`` (atomic) and return its path. ``scene``: the loaded Scene, for the
+    ground-truth evaluation and the notes on what it lacks (masks, ground truth)."""
     secs = []
     status_rows = []
     total = 0.0
@@ -189,19 +262,21 @@ def write_report(out_dir: Path, scene_name: str, records: list[StageRecord], war
         secs.append("<h2>Warnings</h2>" + "".join(f'<div class="warn">{html.escape(w)}</div>' for w in warnings))
     if (p := out_dir / "scene_preview.png").exists():
         secs.append("<h2>Capture</h2>" + _embed(p, "The capture: rendered or recorded views of both arms"))
-    secs.append("<h2>Calibration</h2>" + _calibration_section(out_dir / "calibration"))
-    secs.append("<h2>Metric scene and segments</h2>" + _segments_section(out_dir / "segments"))
+    secs.append("<h2>Calibration</h2>" + _calibration_section(out_dir / "calibration", scene))
+    secs.append("<h2>Metric scene and segments</h2>" + _segments_section(out_dir / "segments", scene))
     secs.append("<h2>Grasps</h2>" + _grasps_section(out_dir / "grasps"))
     for task in ("joint-grasp", "handover"):
         d = out_dir / "tasks" / task
         if d.exists():
-            secs.append(f"<h2>Task: {task}</h2>" + _task_section(d, task))
+            secs.append(f"<h2>Task: {task}</h2>" + _task_section(d, task, scene))
     for r in (r for r in records if r.status == "failed"):
         secs.append(f"<h2>Log of the failed stage '{html.escape(r.name)}'</h2><p>{html.escape(r.message)}</p>"
                     f"<pre>{html.escape(r.log[-4000:])}</pre>")
     page = (f"<!doctype html><html><head><meta charset='utf-8'><title>Bi-JCR report – {html.escape(scene_name)}</title>"
             f"<style>{_CSS}</style></head><body><h1>Bi-JCR report</h1><p>Scene <b>{html.escape(scene_name)}</b>, "
-            f"output folder <code>{html.escape(str(out_dir))}</code>.</p>" + "\n".join(secs) + "</body></html>")
+            f"output folder <code>{html.escape(str(out_dir))}</code>. To turn the scene around in 3D (cloud, arms, "
+            f"cameras, grasps, task replays): <code>bijcr view {html.escape(str(out_dir))}</code> (docs/viewer.md).</p>"
+            + "\n".join(secs) + "</body></html>")
     path = out_dir / "report.html"
     with atomic_open(path) as f:
         f.write(page)

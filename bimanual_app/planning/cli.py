@@ -91,6 +91,11 @@ def _load_inputs(args):
             data = json.loads(cal_path.read_text())
         except (OSError, json.JSONDecodeError) as e:
             raise InputError(Problem(str(cal_path), "", f"cannot read JSON: {e}", "re-run `bijcr calibrate`")) from e
+        if not isinstance(data, dict):
+            raise InputError(Problem(str(cal_path), "", "not a calibration object", "re-run `bijcr calibrate`"))
+        from bimanual_app.tasks import check_calibration_scene
+
+        check_calibration_scene(scene, data, cal_path)  # the check `bijcr task` runs: made for this scene?
         T_b1_b2 = _read_T(data, "T_b1_b2", str(cal_path))
         source = str(cal_path)
         if cloud_path is None:
@@ -164,10 +169,11 @@ def _config(text: str | None, field: str, robot):
 def run(args) -> int:
     import numpy as np
 
-    from bimanual_app.io_utils import InputError, Problem, write_json
+    from bimanual_app.io_utils import InputError, Problem, check_output_dir, write_json
     from bimanual_app.planning import BimanualSetup
     from bimanual_app.planning._preview import plot_trajectory, render_end_state
 
+    out = check_output_dir(args.out if args.out else Path(args.scene) / "reach")
     T_target, position_only = _target(args)
     scene, robot, T_b1_b2, points, colors, cloud_src, cal_src = _load_inputs(args)
     arm, other = args.arm, ("secondary" if args.arm == "primary" else "primary")
@@ -190,7 +196,6 @@ def run(args) -> int:
         }.get(plan.reason, "")
         raise InputError(Problem(str(scene.path), field, plan.message, fix))
 
-    out = Path(args.out) if args.out else scene.path / "reach"
     out.mkdir(parents=True, exist_ok=True)
     traj = plan.trajectories[arm]
     data = plan.to_json()

@@ -5,6 +5,12 @@ from __future__ import annotations
 import argparse
 
 HELP = "validate a scene folder and print a summary (or the list of problems, exit 1)"
+DESCRIPTION = (
+    "Validate a scene folder against the scene format (docs/scene-format.md) and run the checks `bijcr calibrate` "
+    "runs on the views it would use (enough views per arm; rotations about more than one axis; enough travel "
+    "for the scale): a capture calibrate would refuse is a problem here too (exit 1), one it would warn about "
+    "a warning. Prints a summary of the scene, then OK or the problems, each with its fix."
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -55,10 +61,28 @@ def summarize(scene) -> list[str]:
     return lines
 
 
+def capture_problems(scene) -> list:
+    """The degeneracy and view-count checks ``bijcr calibrate`` runs (calibration/_degeneracy.py), on the
+    views it would use (those the reconstruction registered, else every row), as Problems."""
+    from bimanual_app.io_utils import Problem
+    from calibration import analyse_capture
+
+    rec = scene.reconstruction
+    poses = {}
+    for arm in scene.arms:
+        rows = rec.rows_for(arm.index, arm.images)[0] if rec is not None else slice(None)
+        poses[arm.name] = arm.T_b_e[rows]
+    names = set(poses)
+    return [Problem(str(scene.path / f.arm / "ee_poses.csv" if f.arm in names else scene.path), f.arm, f"bijcr calibrate would {'refuse' if f.severity == 'error' else 'warn about'} "
+                    f"this capture: {f.message}", f.fix, f.severity) for f in analyse_capture(poses)]
+
+
 def run(args: argparse.Namespace) -> int:
     from bimanual_app.scene import validate_scene
 
     scene, problems = validate_scene(args.scene)
+    if scene is not None:
+        problems = list(problems) + capture_problems(scene)
     errors = [p for p in problems if p.severity == "error"]
     warnings = [p for p in problems if p.severity == "warning"]
     if scene is not None and not args.quiet:

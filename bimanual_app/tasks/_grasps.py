@@ -135,7 +135,7 @@ def joint_candidates(grasps: dict, path: str) -> list[JointChoice]:
             out.append(JointChoice(oid, _spec(p, "primary", path, where + ".primary", pre),
                                    _spec(s, "secondary", path, where + ".secondary", pre),
                                    float(pair.get("score", 0.0)), kind,
-                                   {k: pair[k] for k in ("imbalance", "separation") if k in pair}))
+                                   {"source": where, **{k: pair[k] for k in ("imbalance", "separation") if k in pair}}))
     best: dict[int, float] = {}
     for c in out:
         best[c.object_id] = max(best.get(c.object_id, -np.inf), c.score)
@@ -167,6 +167,7 @@ def handover_candidates(grasps: dict, path: str) -> list[HandoverChoice]:
         for where, h in entries:
             if isinstance(h, dict) and h:
                 c = _handover_choice(oid, h, path, where, pre)
+                c.info["source"] = where  # which grasps.json entry (the report names an alternative used)
                 c.info["shape"] = shape_kind(o)
                 c.info["free_form"] = c.info["shape"] == "free-form"
                 out.append(c)
@@ -218,7 +219,7 @@ def choose(cands: list, object_id: int | None, task: str, path: str, known_ids: 
         reason = (f"object {best} has the best-scoring {what} among the objects whose shape the cloud determines "
                   f"(a {cands[0].info.get('shape', 'primitive')}; score {cands[0].score:.2f}); object {top.object_id} "
                   f"scores higher ({top.score:.2f}) but is free-form: what no camera saw of it may meet the fingers"
-                  + (f"; other candidates: {', '.join(map(str, others))}" if others else "") + ")")
+                  + (f"; other candidates: {', '.join(map(str, others))}" if others else ""))
         return mine, reason
     reason = (f"object {best} has the best-scoring {what} (score {cands[0].score:.2f}"
               + (f"; other candidates: {', '.join(map(str, others))}" if others else "; the only candidate") + ")")

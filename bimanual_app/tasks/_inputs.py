@@ -1,14 +1,12 @@
 """What a task needs, found or produced: calibration, metric cloud, segments and grasps of one scene.
 
-:func:`ensure_stages` runs the earlier ``bijcr`` stages in-process when their outputs are missing
-(``calibrate``, ``segment``, ``grasp``), timing each; :func:`load_inputs` reads them and refuses a
+:func:`ensure_stages` runs the earlier stages (``calibrate``, ``segment``, ``grasp``: the library calls of
+their ``bijcr`` sub-commands) when their outputs are missing, timing each; :func:`load_inputs` reads them and refuses a
 calibration that belongs to another scene (name, number of views, and the camera poses it implies).
 """
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import sys
 import time
@@ -18,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from bimanual_app.io_utils import InputError, Problem
-from bimanual_app.transforms import check_T, inv_T, rotation_angle_between
+from bimanual_app.transforms import check_T, rotation_angle_between
 
 __all__ = ["StagePaths", "TaskInputs", "stage_paths", "ensure_stages", "load_inputs", "check_calibration_scene"]
 
@@ -39,15 +37,18 @@ class StagePaths:
     grasps: Path
 
     def argv(self, scene: Path, masks: bool | None = None) -> dict[str, list[str]]:
-        """The ``bijcr`` argument lists that produce each output.
+        """The ``bijcr`` command lines equal to each stage (shown to the user, who may run one by hand;
+        :func:`ensure_stages` makes the same library calls).
 
         ``masks``: segment with the scene's per-image masks (``--masks``); None: when the scene has a
         ``masks`` folder, as ``bijcr run`` does.
         """
+        from bimanual_app.app.stages import scene_has_masks
+
         cal_dir, seg_dir, grasp_dir = self.calibration.parent, self.segments.parent, self.grasps.parent
         scene = Path(scene)
         if masks is None:
-            masks = any((scene / arm / "masks").is_dir() for arm in ("primary", "secondary"))
+            masks = scene_has_masks(scene)
         return {
             "calibrate": ["calibrate", str(scene), "--out", str(cal_dir)],
             "segment": ["segment", str(self.cloud), "--out", str(seg_dir)] + (["--masks", str(scene)] if masks else []),
@@ -66,18 +67,26 @@ def ensure_stages(scene_path: Path, paths: StagePaths, timings: dict[str, float]
                   scene=None, masks: bool | None = None) -> list[str]:
     """Run ``calibrate`` / ``segment`` / ``grasp`` in-process for each missing output; returns the stages run.
 
-    ``timings`` receives the seconds of each stage run now (``calibrate``, ``segment``, ``grasp``);
-    ``masks`` as in :meth:`StagePaths.argv`. A
-    calibration present but made for another scene is refused *before* anything downstream runs on it.
-    Raises InputError naming the stage, its output and its messages when a stage fails.
+    Each is the library call of its ``bijcr`` sub-command (:mod:`bimanual_app.app.stages`). ``timings``
+    receives the seconds of each stage run now (``calibrate``, ``segment``, ``grasp``); ``masks`` as in
+    :meth:`StagePaths.argv`. A calibration present but made for another scene is refused *before*
+    anything downstream runs on it. Raises InputError naming the stage, its output and its error when a
+    stage fails; KeyboardInterrupt propagates.
     """
-    from bimanual_app.cli import main as cli_main
+    from functools import partial
+
+    from bimanual_app.app import stages as S
 
     argv = paths.argv(scene_path, masks)
-    steps = [("calibrate", [paths.calibration, paths.cloud]), ("segment", [paths.segments]),
-             ("grasp", [paths.grasps])]
+    use_masks = Path(scene_path) if "--masks" in argv["segment"] else None
+    steps = [("calibrate", [paths.calibration, paths.cloud],
+              partial(S.calibrate, Path(scene_path), paths.calibration.parent)),
+             ("segment", [paths.segments], partial(S.segment, paths.cloud, paths.segments.parent, paths.calibration,
+                                                   use_masks, progress=not quiet)),
+             ("grasp", [paths.grasps], partial(S.grasp, paths.cloud, paths.segments, paths.calibration,
+                                               paths.grasps.parent))]
     ran = []
-    for name, outputs in steps:
+    for name, outputs, run in steps:
         if name == "segment" and scene is not None and paths.calibration.exists():
             # never segment / grasp a cloud made by another scene's calibration
             check_calibration_scene(scene, _read_calibration(paths.calibration), paths.calibration)
@@ -86,35 +95,26 @@ def ensure_stages(scene_path: Path, paths: StagePaths, timings: dict[str, float]
         if not quiet:
             print(f"task: running `bijcr {' '.join(argv[name])}` ({', '.join(o.name for o in outputs)} missing)",
                   file=sys.stderr, flush=True)
-        buf = io.StringIO()
         t0 = time.perf_counter()
-        with contextlib.redirect_stdout(buf if quiet else sys.stdout), contextlib.redirect_stderr(_Tee(buf, quiet)):
-            try:
-                rc = cli_main(argv[name])
-            except SystemExit as e:  # argparse rejects the arguments
-                rc = int(e.code or 2)
+        _run_stage(name, run, outputs, argv[name], quiet)
         timings[name] = time.perf_counter() - t0
         ran.append(name)
-        missing = [o for o in outputs if not o.exists()]
-        if rc != 0 or missing:
-            tail = [ln.strip() for ln in buf.getvalue().splitlines() if ln.strip()][-8:]
-            raise InputError(Problem(str(outputs[0]), name,
-                                     f"the '{name}' stage failed (exit code {rc})"
-                                     + (f", did not write {', '.join(map(str, missing))}" if missing else "")
-                                     + (": " + " | ".join(tail) if tail else ""),
-                                     f"fix the problem above, or run `bijcr {' '.join(argv[name])}` by hand"))
     return ran
 
 
-class _Tee(io.TextIOBase):
-    def __init__(self, buf, quiet):
-        self.buf, self.quiet = buf, quiet
+def _run_stage(name: str, run, outputs: list[Path], argv: list[str], quiet: bool) -> None:
+    """One earlier stage; InputError naming it, its output and its error when it fails."""
+    from bimanual_app.app.pipeline import StageFailure
 
-    def write(self, s):
-        self.buf.write(s)
-        if not self.quiet:
-            sys.__stderr__.write(s)
-        return len(s)
+    fix = f"fix the problem above, or run `bijcr {' '.join(argv)}` by hand"
+    try:
+        run((lambda m: None) if quiet else (lambda m: print(m, file=sys.stderr, flush=True)))
+    except (InputError, StageFailure) as e:
+        raise InputError(Problem(str(outputs[0]), name, f"the '{name}' stage failed: " + " | ".join(str(e).splitlines()),
+                                 fix)) from None
+    missing = [str(o) for o in outputs if not o.exists()]
+    if missing:
+        raise InputError(Problem(str(outputs[0]), name, f"the '{name}' stage did not write {', '.join(missing)}", fix))
 
 
 def _read_calibration(path: Path) -> dict:

@@ -120,8 +120,9 @@ class TaskMotion:
             (grown by ``cut_radius``) are cut out too.
         up: (3,) the table normal in b1: the carried object's box keeps an edge along it (its points are
             extruded down to the table); None: principal axes only.
-        seed: OMPL's random seed (one per process: OMPL takes the first), so that a task run again on the
-            same inputs plans the same motions, and its preview approval stays valid; None: time-seeded.
+        seed: base seed of OMPL's random numbers, combined with each query's inputs (start, goals, scene
+            map), so that a task run again on the same inputs plans the same motions in any process (alone,
+            or after the other stages in ``bijcr run``) and its preview approval stays valid; None: time-seeded.
         plan_time: OMPL time limit per query (s).
         speed: fraction of the velocity/acceleration limits used.
         margin: collision margin (m) of free motions.
@@ -226,7 +227,7 @@ class TaskMotion:
             self.stats["grasped_points_cut"] = self.stats.get("grasped_points_cut", 0) + int(inside.sum())
         return int(inside.sum())
 
-    def valid(self, q: dict) -> list[str]:
+    def problems(self, q: dict) -> list[str]:
         """Problems of a configuration of both arms in the current context ([] when valid)."""
         if self.world.valid(q["primary"], q["secondary"]):
             return []
@@ -236,9 +237,9 @@ class TaskMotion:
         """The IK solutions (closest first) that are collision free with the other arm at ``q_other``."""
         sols = self.ik(arm, T_b1_g, q_seed)
         other = "secondary" if arm == "primary" else "primary"
-        ok = [s for s in sols if not self.valid({arm: s, other: q_other})]
+        ok = [s for s in sols if not self.problems({arm: s, other: q_other})]
         if not ok:
-            why = self.valid({arm: sols[0], other: q_other})
+            why = self.problems({arm: sols[0], other: q_other})
             raise PlanFailure("reach", f"the {arm} arm reaches {np.round(T_b1_g[:3, 3], 3).tolist()} only in "
                                        f"collision: {'; '.join(why[:2])}")
         return np.stack(ok)

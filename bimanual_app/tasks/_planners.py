@@ -38,6 +38,7 @@ RETREAT_UP = 0.08  # m of the fallback retreats of a push pair (straight up, or 
 PUSH_STANDOFF = 0.01
 HANDOVER_LIFT = 0.06  # m straight up after the pick, before the free carry
 HANDOVER_LIFTS = (HANDOVER_LIFT, 0.10, 0.14, 0.04)  # tried in order: higher beside a taller neighbour
+RETREAT_MIN = 0.045  # m: the least back-off of the giver that leaves its open fingers clear of the object
 HOLD_S = 2.3  # s of the checked hold (2 s needed)
 CLOSE_S = 1.0  # s to close a gripper (force limited: it stops on the object)
 SETTLE_S = 0.4  # s still after a gripper change
@@ -205,6 +206,35 @@ def _lift_directions(motion: TaskMotion, T_b1_g: np.ndarray, object_points: np.n
     return dirs
 
 
+def _giver_retreat(motion: TaskMotion, gt: GraspSpec, q: dict, held: tuple, up: np.ndarray,
+                   openings: dict) -> tuple:
+    """The giver's straight back-off from its grasp ``gt`` once the receiver holds the object:
+    (trajectory, distance m, how). Near the reach limit it backs off less far: the largest distance from
+    its pre-grasp distance down to ``RETREAT_MIN`` that is reachable and leaves the open fingers clear of
+    the held object. Raises PlanFailure with the reason when none is."""
+    distances = np.arange(gt.pre_dist, RETREAT_MIN, -0.01)
+    if len(distances) == 0:
+        raise PlanFailure("reach", f"the {gt.arm}'s pre-grasp is only {gt.pre_dist * 100:.1f} cm back from its "
+                                   f"grasp: it cannot back off the {RETREAT_MIN * 100:.1f} cm that keeps its open "
+                                   "fingers clear of the object")
+    err = None
+    for how, direction in _retreat_directions(gt.T_b1_g, up):
+        for dist in distances:
+            back = translate_along(gt.T_b1_g, direction, dist)
+            try:
+                with motion.context("cut", openings=openings):
+                    tr = motion.cartesian({gt.arm: (gt.T_b1_g, back)}, q)[gt.arm]
+                with motion.context("attached", openings=openings, attach=held):
+                    why = motion.problems({**q, gt.arm: tr.q[-1]})
+                if why:
+                    raise PlanFailure("validation", f"after backing off {dist * 100:.0f} cm ({how}) the {gt.arm} "
+                                                    f"still touches the object: {why[0]}")
+                return tr, float(dist), how
+            except PlanFailure as e:
+                err = e
+    raise err or PlanFailure("reach", f"the {gt.arm} has no direction to back off along")
+
+
 def _approachable(motion: TaskMotion, arm: str, sols: np.ndarray, T_pre: np.ndarray, T: np.ndarray) -> np.ndarray:
     """The pre-grasp IK solutions (order kept) from which the straight approach to ``T`` stays on one IK
     branch (so the OMPL goal and the approach that follows it agree); raises the first failure if none."""
@@ -263,7 +293,7 @@ def _joint_grasp(motion, choice, q_start, width_start, lift, up, at) -> TaskPlan
         sols = {a: _approachable(motion, a, _goal_ik(motion, a, pre[a], [G[a].q_pre, q_start[a], G[a].q]), pre[a],
                                  G[a].T_b1_g) for a in arms}
         goals = [{"primary": s1, "secondary": s2} for s1 in sols["primary"][:3] for s2 in sols["secondary"][:3]]
-        goals = [g for g in goals if not motion.valid(g)] or goals[:1]
+        goals = [g for g in goals if not motion.problems(g)] or goals[:1]
         tr = motion.plan_free(list(arms), q_start, goals)
     plan.add(Phase("reach", {a: _jt(tr[a].times, tr[a].q, _ramp(tr[a].times, width_start[a], w_open[a]))
                              for a in arms}, "both grippers to their pre-grasps, opening", "ompl"))
@@ -418,7 +448,7 @@ def plan_handover(motion: TaskMotion, choice: HandoverChoice, q_start: dict, wid
             continue
         q_from = {**q_start, "secondary": q_aside}
         with motion.context("map", openings={"primary": width_start["primary"], "secondary": w_sec}):
-            if motion.valid(q_from):
+            if motion.problems(q_from):
                 continue
             try:
                 way = motion.plan_free(["secondary"], q_start, [{"secondary": q_aside}])["secondary"]
@@ -481,7 +511,7 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
     # attached, clear of the table).
     dirs = _lift_directions(motion, pick.T_b1_g, object_points, up)
     with motion.context("cut", openings={"primary": cw_g}):
-        if motion.valid(q):  # the closed fingers meet points the segment left out: the object's own
+        if motion.problems(q):  # the closed fingers meet points the segment left out: the object's own
             motion.cut_grasped(pick.T_b1_g, wg)
     def try_lifts(q, pad=OBJECT_PADDING):
         """The first lift (in the order of HANDOVER_LIFTS x dirs) the primary can follow with the secondary
@@ -501,7 +531,7 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
                     # the carry is planned with the object attached, kept clear by the free-motion margin: an
                     # object lifted beside a taller neighbour still touches it, so lift higher
                     with motion.context("attached", openings={"primary": cw_g}, attach=attach, object_padding=pad):
-                        why = motion.valid({"primary": tr.q[-1], "secondary": q["secondary"]})
+                        why = motion.problems({"primary": tr.q[-1], "secondary": q["secondary"]})
                     if why:
                         raise PlanFailure("validation", f"lifted {dist * 100:.0f} cm ({how}), the carried object is "
                                                         f"still too close to the scene: {why[0]}")
@@ -533,7 +563,7 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
     with motion.context("attached", openings={"primary": cw_g, "secondary": w0}, attach=attach,
                         object_padding=carry_pad):
         sols = _goal_ik(motion, "primary", gt.T_b1_g, [gt.q, q["primary"]])
-        if all(any("secondary" in w for w in motion.valid({**q, "primary": s_})) for s_ in sols[:4]):
+        if all(any("secondary" in w for w in motion.problems({**q, "primary": s_})) for s_ in sols[:4]):
             # the transfer pose brings the object against the waiting secondary: it goes to its pre-grasp
             # in the same motion (out of the way, to where it takes the object over)
             # (opening on the way: checked at the wider of its two openings)
@@ -541,7 +571,7 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
                                 object_padding=carry_pad):
                 sols_r = _goal_ik(motion, "secondary", pre_rec, [rec.q_pre, q_start["secondary"], rec.q])
                 goals = [{"primary": s1, "secondary": s2} for s1 in sols[:3] for s2 in sols_r[:3]]
-                goals = [g_ for g_ in goals if not motion.valid(g_)] or goals[:1]
+                goals = [g_ for g_ in goals if not motion.problems(g_)] or goals[:1]
                 tr = motion.plan_free(["primary", "secondary"], q, goals)
             ts = tr["secondary"].times
             plan.add(Phase("transfer", {"primary": _jt(tr["primary"].times, tr["primary"].q, CLOSED),
@@ -581,7 +611,7 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
             # the goals open (checked at the receiver's opening); the way there keeps the gripper as it was:
             # the transfer pose may bring the object near the waiting secondary, whose fingers, opened where
             # it stands, would touch it before it moves
-            ok = [s_ for s_ in cand if not motion.valid({**q, "secondary": s_})]
+            ok = [s_ for s_ in cand if not motion.problems({**q, "secondary": s_})]
         if ok or sols is None:
             sols, pre_used, pad_used = np.stack(ok or [cand[0]]), T_pre, pad
         if ok:
@@ -619,34 +649,14 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
     held_pts = object_points @ choice.T_move[:3, :3].T + choice.T_move[:3, 3]
     held = ("secondary", q["secondary"], held_pts)
     at.append("retreat")
-    tr, err, dist, how = None, None, 0.0, ""
-    for how, direction in _retreat_directions(gt.T_b1_g, up):
-        # near the reach limit, back off less far: the largest distance that is reachable and leaves the
-        # open fingers clear of the object (now held by the secondary)
-        for dist in np.arange(gt.pre_dist, 0.045, -0.01):
-            back = translate_along(gt.T_b1_g, direction, dist)
-            try:
-                with motion.context("cut", openings={"primary": wl, "secondary": cw_r}):
-                    tr = motion.cartesian({"primary": (gt.T_b1_g, back)}, q)["primary"]
-                with motion.context("attached", openings={"primary": wl, "secondary": cw_r}, attach=held):
-                    why = motion.valid({"primary": tr.q[-1], "secondary": q["secondary"]})
-                if why:
-                    raise PlanFailure("validation", f"after backing off {dist * 100:.0f} cm ({how}) the primary "
-                                                    f"still touches the object: {why[0]}")
-                break
-            except PlanFailure as e:
-                tr, err = None, e
-        if tr is not None:
-            break
-    if tr is None:
-        raise err
+    tr, dist, how = _giver_retreat(motion, gt, q, held, up, {"primary": wl, "secondary": cw_r})
     plan.add(Phase("retreat", {"primary": _jt(tr.times, tr.q, wl)},
                    f"primary backs off {dist * 100:.0f} cm ({how})", "cartesian"))
     at.append("home")
     # the primary goes back to its start; the object, now in the secondary's gripper, is an obstacle
     q, _ = plan.end_state()
     with motion.context("attached", openings={"primary": wl, "secondary": cw_r}, attach=held):
-        home_blocked = motion.valid({"primary": q_start["primary"], "secondary": q["secondary"]})
+        home_blocked = motion.problems({"primary": q_start["primary"], "secondary": q["secondary"]})
         if not home_blocked:
             tr = motion.plan_free(["primary"], q, [{"primary": q_start["primary"]}])["primary"]
     if home_blocked:  # the object, now held by the secondary, is where the primary started: it stays backed off

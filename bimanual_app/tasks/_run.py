@@ -90,6 +90,16 @@ def _default_paths(opts: TaskOptions, scene) -> tuple[Path, Path]:
     return work, out
 
 
+def _check_output_folders(work, out) -> None:
+    """InputError before any work when the work or output folder is a file or cannot be written."""
+    from bimanual_app.io_utils import check_output_dir
+
+    if work is not None:
+        check_output_dir(work, "--work", "give a folder (new, or one holding earlier results) you can write to")
+    if out is not None:
+        check_output_dir(out, "--out", "give a new folder, or an earlier task result, you can write to")
+
+
 def _connect_hardware(opts: TaskOptions, robot):
     """Both arms, connected (listening only); their joint angles are the plan's start."""
     from bimanual_app.hardware import BimanualHardware
@@ -117,6 +127,7 @@ def run_task(opts: TaskOptions) -> TaskResult:
                                  "runs only plans previewed on the reconstruction", "leave out one of the two"))
     if not opts.plan_time > 0:
         raise InputError(Problem("", "--plan-time", "must be > 0", "give seconds, e.g. --plan-time 5"))
+    _check_output_folders(opts.work, opts.out)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     scene = load_scene(opts.scene)
@@ -125,6 +136,7 @@ def run_task(opts: TaskOptions) -> TaskResult:
                                  "--truth-objects (and compare_truth) needs the scene's ground-truth objects",
                                  "use a synthetic scene (bijcr synth) or leave out --truth-objects"))
     work, out = _default_paths(opts, scene)
+    _check_output_folders(None if opts.work else work, None if opts.out else out)  # the defaults, too
     paths = stage_paths(work)
     staging = OutputDir(out)  # refuses a folder of foreign files before any work
     try:
@@ -248,7 +260,7 @@ def _run_loaded(opts, scene, inputs, robot, staging: OutputDir, timings: dict) -
                                   inputs.points[inputs.labels == o], plan_time=opts.plan_time, speed=opts.speed,
                                   body=sh, up=table.normal)
             if motion is None:  # the first map built: the start must be free in it
-                problems = motion_o.valid(q_start)
+                problems = motion_o.problems(q_start)
                 if problems:
                     return fail("start", "the arms' start configuration is in collision: " + "; ".join(problems[:3]))
             motion = motion_o
@@ -262,6 +274,7 @@ def _run_loaded(opts, scene, inputs, robot, staging: OutputDir, timings: dict) -
                     else:
                         plan = plan_handover(motion_o, c, q_start, width_start, pts_o, up=table.normal)
                     plan.info["candidate_rank"] = k
+                    plan.info["candidate"] = {"grasps_json": c.info.get("source"), "score": round(float(c.score), 4)}
                     timeline = plan.timeline()
                     try:  # the samples the preview and the hardware get
                         motion_o.validate_timeline(timeline, plan.opening_spans())

@@ -1,0 +1,76 @@
+"""``bijcr view RUN_DIR``: the run's metric cloud and segments, both arms, the calibrated cameras and
+frames, the grasps and each task's plan in an interactive 3D page served with viser.
+
+RUN_DIR is the --out folder of ``bijcr run`` (or any folder holding calibration/, segments/, grasps/,
+tasks/). The page listens on 127.0.0.1 only unless --host is given; from another machine, forward the
+port over SSH. Layers the folder does not hold are left out with a note. Stops after --timeout seconds
+or on Ctrl-C. Needs the optional `viser` package: pip install -e .[view]. See docs/viewer.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+HELP = "serve an interactive 3D page of a run: cloud, segments, arms, cameras, grasps, task replays"
+DESCRIPTION = __doc__
+
+LOOPBACK = ("127.0.0.1", "localhost", "::1")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("run_dir", metavar="RUN_DIR", help="output folder of `bijcr run` (holds calibration/ ...)")
+    p.add_argument("--port", type=int, default=8080, help="port to serve on (default 8080; the next free one if taken)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to listen on (default 127.0.0.1: this machine only; 0.0.0.0: every interface)")
+    p.add_argument("--scene", metavar="SCENE", default=None,
+                   help="the scene folder, for the capture cameras and images (default: the one the run names)")
+    p.add_argument("--timeout", type=float, default=None, metavar="S", help="stop serving after S seconds")
+    p.add_argument("--task", default=None, help="open with this task's replay chosen (a folder name under tasks/)")
+    p.add_argument("--at", type=float, default=0.0, metavar="T", help="with --task: open at T seconds into the plan")
+
+
+def _require_viser() -> None:
+    import importlib.util
+
+    missing = [m for m in ("viser", "yourdfpy") if importlib.util.find_spec(m) is None]
+    if missing:
+        from bimanual_app.io_utils import InputError, Problem
+
+        raise InputError(Problem("", "bijcr view", f"the optional package(s) {', '.join(missing)} are not installed",
+                                 "pip install -e .[view]   (from the project folder, in its environment)"))
+
+
+def run(args: argparse.Namespace) -> int:
+    import socket
+    import sys
+
+    from bimanual_app.io_utils import InputError, Problem
+
+    _require_viser()
+    if not 0 < args.port < 65536:
+        raise InputError(Problem("", "--port", f"{args.port} is not a port number", "give 1..65535, e.g. --port 8080"))
+    from bimanual_app.viewer import load_run, serve
+
+    layers = load_run(args.run_dir, scene=args.scene)
+    if args.task is not None and args.task not in {t.name for t in layers.tasks}:
+        raise InputError(Problem(str(args.run_dir), "--task", f"no replayable task {args.task!r}",
+                                 f"choose one of: {', '.join(t.name for t in layers.tasks) or 'none (no plan.npz)'}"))
+    for n in layers.notes:
+        print(f"note: {n}", file=sys.stderr)
+
+    def ready(port: int) -> None:
+        local = args.host in LOOPBACK
+        url_host = "127.0.0.1" if local or args.host in ("0.0.0.0", "::") else args.host
+        print(f"bijcr view: serving {args.run_dir} at http://{url_host}:{port}", flush=True)
+        if local:
+            print(f"  listening on {args.host} only (this machine); --host 0.0.0.0 opens it to the network", flush=True)
+        else:
+            print(f"  listening on {args.host}: anyone who can reach this machine on port {port} can open the page",
+                  flush=True)
+        print(f"  from another machine: ssh -L {port}:127.0.0.1:{port} {socket.gethostname()}  then open "
+              f"http://127.0.0.1:{port}", flush=True)
+        print("  Ctrl-C stops" + (f"; stops by itself after {args.timeout:g} s" if args.timeout else ""), flush=True)
+
+    serve(layers, host=args.host, port=args.port, timeout=args.timeout, on_ready=ready, task=args.task, at=args.at)
+    print("bijcr view: stopped", flush=True)
+    return 0

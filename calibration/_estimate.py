@@ -1,0 +1,292 @@
+"""The joint weighted estimate (``calibration._joint``) from the pose-only solve: rounds of point pairs from
+coarse to fine, each a robust solve of all cost terms with noise levels re-estimated from its residuals,
+then the held-out check (``calibration._guard``) against the pose-only estimate."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import _joint as jm
+from ._guard import held_out_cost
+from ._pointmaps import find_pairs, map_residuals, view_camera_poses
+from ._terms import CostTerm, solve_terms, stack, update_terms
+
+__all__ = ["JointFit", "estimate_jointly"]
+
+#: correspondence radii (m) of the successive rounds, coarse to fine; the last is repeated (up to
+#: MAX_FINE_ROUNDS more) until a round moves the workspace by less than CONVERGED_M. Point-to-plane pairs
+#: slide along the table, so the in-plane error goes by re-matching at object edges, round by round.
+RADII = (0.03, 0.02, 0.012, 0.008)
+MAX_FINE_ROUNDS = 4
+CONVERGED_M = 2e-4
+LEVER_M = 0.5  # a rotation change is judged by what it does this far away (the scale's likewise)
+POINTS_PER_VIEW = 800  # sampled points per view that look for partners
+TARGETS_PER_VIEW = 6000  # points per view among which partners are looked for by nearest neighbour
+MIN_PAIRS = 500
+F_SCALE = 2.5  # robust knee, in noise sigmas (as the pose-only solve)
+PAIR_SIGMA0 = 3.0  # starting noise of the pair summaries (1 if the distances were independent)
+#: a view whose map meets the others' this much less than the median view, placed by the reconstruction's
+#: own poses, contradicts its own pose (see contradicting_views)
+BAD_MATCH_RATIO = 0.25
+CONTRADICTION_RADIUS_M = 0.02
+# a result that moves an output further than this is not a correction of the pose-only solve
+MAX_ROT_CHANGE_DEG = 5.0
+MAX_TRANS_CHANGE_M = 0.05
+MAX_LOG_SCALE_CHANGE = 0.1
+
+
+@dataclass
+class JointFit:
+    """The joint estimate and the evidence for it.
+
+    Attributes:
+        state: the estimate (:class:`calibration._joint.JointState`), or the start when ``accepted`` is False.
+        accepted: the joint estimate passed every check and the held-out test preferred it.
+        reason: why not, when not accepted.
+        covariance: (25 + V, 25 + V) of the corrections at ``state`` (from the weighted problem).
+        noise: the estimated noise levels (rotation rad, position m, per-view map m, F, sigma_kappa).
+        held_out: ``{"joint": total, "pose_only": total}`` held-out costs.
+        residuals_before_m, residuals_after_m: point-to-plane distances of the final pairs at the start and
+            at the estimate; rounds: per round ``{"radius_m", "pairs", "rms_m", "moved_m"}``.
+        dropped_views: indices of views left out of the point-map term (their map contradicts their pose).
+    """
+
+    state: object
+    accepted: bool
+    reason: str = ""
+    covariance: np.ndarray | None = None
+    noise: dict = field(default_factory=dict)
+    held_out: dict = field(default_factory=dict)
+    residuals_before_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    residuals_after_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    pairs: int = 0
+    cross_arm: int = 0
+    rounds: list = field(default_factory=list)
+    dropped_views: list = field(default_factory=list)
+
+
+def _sample(views, n: int, seed: int = 0) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return [rng.choice(len(v.points_c), min(n, len(v.points_c)), replace=False) if len(v.points_c)
+            else np.zeros(0, dtype=int) for v in views]
+
+
+def _pairs_at(views, st, samples, targets, radius, active):
+    Tc = view_camera_poses(views, st.T_e1_c1, st.T_e2_c2, st.T_b1_b2)
+    use = [s if active[k] else s[:0] for k, s in enumerate(samples)]
+    pairs = find_pairs(views, use, targets, Tc, st.scale * np.exp(st.kappa), st.T_b1_b2, radius)
+    if pairs is not None and not active.all():
+        keep = active[pairs.vb] & active[pairs.va]
+        if not keep.all():
+            from ._pointmaps import MapPairs
+
+            pairs = MapPairs(pairs.va[keep], pairs.pa[keep], pairs.vb[keep], pairs.pb[pairs.inv_ob][keep],
+                             pairs.nb[pairs.inv_ob][keep], len(views))
+    return pairs
+
+
+def _movement(theta: np.ndarray) -> float:
+    """How far (m) a change of the calibration corrections moves points of the workspace, at most."""
+    rot = np.linalg.norm(theta[[0, 1, 2, 6, 7, 8, 13, 14, 15]].reshape(3, 3), axis=1)
+    trans = np.linalg.norm(theta[[3, 4, 5, 9, 10, 11, 16, 17, 18]].reshape(3, 3), axis=1)
+    return float(max((rot * LEVER_M + trans).max(), abs(theta[12]) * LEVER_M))
+
+
+def _x_scale(V: int) -> np.ndarray:
+    return np.r_[[0.01] * 3, [0.005] * 3, [0.01] * 3, [0.005] * 3, [0.01], [0.01] * 3, [0.01] * 3,
+                 [0.01] * 3, [0.01] * 3, [0.01] * V]
+
+
+def _terms(st, views, pairs, arms, E, P, noise) -> list[CostTerm]:
+    """The cost terms at ``st``: kinematic loop, point maps, depth-factor prior."""
+    return [jm.pose_term(st, arms, E, P, noise["pose"]), jm.map_term(st, views, pairs, noise["map"], noise["pair"]),
+            jm.depth_prior_term(st, noise["kappa"], arms)]
+
+
+def _record(noise: dict, terms: list[CostTerm]) -> None:
+    pose, maps, prior = terms
+    noise["pose"] = tuple(float(s) for s in pose.sigma)
+    noise["pair"] = float(maps.sigma[0])
+    noise["map"] = np.asarray(maps.info["sigma_view_m"], dtype=np.float64)
+    noise["kappa"] = float(prior.sigma[0])
+
+
+def _initial_map_noise(st, views, pairs) -> np.ndarray:
+    """(V,) per-view map noise of the residuals at the start."""
+    raw = map_residuals(np.zeros(19), st.kappa, views, st.calibration, pairs)
+    return jm.view_map_noise(raw, pairs.va, len(views))
+
+
+def _round(st, views, pairs, arms, E, P, noise, passes: int):
+    """One round: solve all terms, re-estimate their noise, repeat until the levels settle."""
+    V = len(views)
+    theta = np.zeros(jm.N_CAL + V)
+    moved = 0.0
+    for _ in range(passes):
+        terms = _terms(st, views, pairs, arms, E, P, noise)
+        sol = solve_terms(terms, theta, _x_scale(V), F_SCALE)
+        moved += _movement(sol.x)
+        st = jm.perturb(st, sol.x)
+        terms = _terms(st, views, pairs, arms, E, P, noise)
+        _, J = stack(terms, theta)
+        change = update_terms(terms, theta, J)
+        _record(noise, terms)
+        if change < 0.1:
+            break
+    return st, moved
+
+
+def contradicting_views(views, P: np.ndarray, start, samples, targets) -> np.ndarray:
+    """(V,) bool: views whose point map contradicts its own pose. Placed where the reconstruction's own poses
+    ``P`` (V, 4, 4) put them (``T_b1_w P(s)``), the views' maps must meet each other (a reconstruction makes
+    its maps and poses together); a view that finds partners for fewer than BAD_MATCH_RATIO of the median
+    view's share of its samples (within CONTRADICTION_RADIUS_M) has a map that does not fit its pose (its
+    depth far off, a wrong image)."""
+    from ._closed_form import scaled
+
+    V = len(views)
+    Tc = start.T_b1_w @ scaled(np.asarray(P, dtype=np.float64), start.scale)
+    pairs = find_pairs(views, samples, targets, Tc, np.full(V, start.scale), start.T_b1_b2, CONTRADICTION_RADIUS_M)
+    if pairs is None:
+        return np.zeros(V, dtype=bool)
+    rate = np.bincount(pairs.va, minlength=V) / np.maximum([len(x) for x in samples], 1)
+    return rate < BAD_MATCH_RATIO * np.median(rate)
+
+
+def _view_rows(terms: list[CostTerm]) -> np.ndarray:
+    """(M, 2) the view(s) each stacked residual belongs to (-1: none)."""
+    pose, maps, prior = terms
+    return np.concatenate([np.stack([pose.views, np.full(len(pose.views), -1)], 1), maps.views,
+                           np.full((len(prior.groups), 2), -1)])
+
+
+def _held_out(terms_joint, terms_pose, V: int) -> dict:
+    """Held-out cost of the joint estimate and of the pose-only one (same residuals, same weights)."""
+    theta = np.zeros(jm.N_CAL + V)
+    out = {}
+    n_pose = len(terms_joint[0].groups)
+    for name, terms in (("joint", terms_joint), ("pose_only", terms_pose)):
+        r, J = stack(terms, theta)
+        rows = _view_rows(terms)
+        all_rows = np.ones(len(r), dtype=bool)
+        if name == "joint":
+            blocks = [(all_rows, np.arange(jm.N_CAL + V))]
+        else:
+            loop = np.zeros(len(r), dtype=bool)
+            loop[:n_pose] = True
+            blocks = [(loop, np.arange(jm.N_CAL)), (~loop, np.arange(jm.N_CAL, jm.N_CAL + V))]
+        out[name] = float(held_out_cost(J, r, rows, blocks, F_SCALE).sum())
+    return out
+
+
+def _fit_depth_only(st, views, pairs, arms, E, P, noise):
+    """The pose-only calibration with its depth factors fitted to the maps (calibration fixed)."""
+    V = len(views)
+    terms = _terms(st, views, pairs, arms, E, P, noise)
+    from scipy.optimize import least_squares
+
+    cols = np.arange(jm.N_CAL, jm.N_CAL + V)
+
+    def f(k):
+        th = np.zeros(jm.N_CAL + V)
+        th[cols] = k
+        return stack(terms[1:], th, jac=False)[0]
+
+    def jac(k):
+        th = np.zeros(jm.N_CAL + V)
+        th[cols] = k
+        return stack(terms[1:], th)[1][:, cols]
+
+    sol = least_squares(f, np.zeros(V), jac=jac, loss="soft_l1", f_scale=F_SCALE, x_scale=0.01, max_nfev=30)
+    th = np.zeros(jm.N_CAL + V)
+    th[cols] = sol.x
+    return jm.perturb(st, th)
+
+
+def estimate_jointly(views: list, arms: np.ndarray, E: np.ndarray, P: np.ndarray, start, pose_noise: tuple,
+                     progress=None) -> JointFit:
+    """The joint weighted estimate from the pose-only ``start`` (:class:`JointState`, kappa zero).
+
+    Args:
+        views: (V) point maps in their camera frames (``_pointmaps.camera_frame_views``), one per view.
+        arms: (V,) 1 or 2; E: (V, 4, 4) ``T_b_e``; P: (V, 4, 4) the reconstruction's ``T_w_c``.
+        pose_noise: the pose-only solve's (rotation rad, position m) noise per view.
+        progress: optional callable(str), one line per round.
+    """
+    V = len(views)
+    if min(int(np.sum(arms == 1)), int(np.sum(arms == 2))) < 2:
+        return JointFit(start, False, f"needs 2 or more point maps per arm, has {int(np.sum(arms == 1))} / "
+                                      f"{int(np.sum(arms == 2))}")
+    samples, targets = _sample(views, POINTS_PER_VIEW), _sample(views, TARGETS_PER_VIEW, 1)
+    active = ~contradicting_views(views, P, start, samples, targets)
+    st, rounds, noise, pairs = start, [], {"pose": tuple(pose_noise), "kappa": jm.KAPPA_SIGMA, "pair": PAIR_SIGMA0}, None
+    schedule = list(RADII) + [RADII[-1]] * MAX_FINE_ROUNDS
+    for k, radius in enumerate(schedule):
+        pairs = _pairs_at(views, st, samples, targets, radius, active)
+        n = 0 if pairs is None else len(pairs)
+        if n < MIN_PAIRS:
+            return JointFit(start, False, f"the point maps overlap too little: {n} point pairs within "
+                                          f"{radius * 1e3:.0f} mm (needs {MIN_PAIRS})", rounds=rounds)
+        if "map" not in noise:
+            noise["map"] = _initial_map_noise(st, views, pairs)
+        st, moved = _round(st, views, pairs, arms, E, P, noise, passes=2 if k >= len(RADII) - 1 else 1)
+        after = map_residuals(np.zeros(19), st.kappa, views, st.calibration, pairs)
+        rounds.append({"radius_m": radius, "pairs": n, "rms_m": float(np.sqrt(np.mean(after ** 2))), "moved_m": moved,
+                       "pair_noise": noise["pair"]})
+        if progress:
+            progress(f"joint estimate: {radius * 1e3:.0f} mm round, {n} point pairs, moved {moved * 1e3:.2f} mm, "
+                     f"loop noise {np.degrees(noise['pose'][0]):.2f} deg / {noise['pose'][1] * 1e3:.1f} mm, "
+                     f"maps {np.median(noise['map']) * 1e3:.2f} mm, pair summaries x {noise['pair']:.1f}")
+        if k >= len(RADII) - 1 and moved < CONVERGED_M:
+            break
+    return _conclude(start, st, views, pairs, arms, E, P, noise, rounds, active)
+
+
+def _conclude(start, st, views, pairs, arms, E, P, noise, rounds, active) -> JointFit:
+    """Checks, held-out test and covariance of the final estimate."""
+    V = len(views)
+    zero = np.zeros(19)
+    r0 = map_residuals(zero, np.zeros(V), views, start.calibration, pairs)
+    r1 = map_residuals(zero, st.kappa, views, st.calibration, pairs)
+    arm = np.array([v.arm for v in views])
+    fit = JointFit(start, False, noise=_noise_report(noise), residuals_before_m=r0, residuals_after_m=r1,
+                   pairs=len(pairs), cross_arm=int(np.sum(arm[pairs.va] != arm[pairs.vb])), rounds=rounds,
+                   dropped_views=[int(v) for v in np.flatnonzero(~active)])
+    rot, trans, dlog = _change(start, st)
+    if rot > MAX_ROT_CHANGE_DEG or trans > MAX_TRANS_CHANGE_M or abs(dlog) > MAX_LOG_SCALE_CHANGE:
+        fit.reason = (f"the joint estimate would move an output by {rot:.1f} deg / {trans * 1e3:.0f} mm / scale "
+                      f"{(np.exp(dlog) - 1) * 100:+.1f} %, more than a correction of the pose-only solve")
+        return fit
+    if fit.cross_arm == 0:
+        fit.reason = "no point pairs between the two arms' views: T_b1_b2 cannot be refined"
+        return fit
+    terms = _terms(st, views, pairs, arms, E, P, noise)
+    pose_st = _fit_depth_only(start, views, pairs, arms, E, P, noise)
+    fit.held_out = _held_out(terms, _terms(pose_st, views, pairs, arms, E, P, noise), V)
+    _, J = stack(terms, np.zeros(jm.N_CAL + V))
+    fit.covariance = np.linalg.pinv(J.T @ J)
+    if fit.held_out["joint"] >= fit.held_out["pose_only"]:
+        fit.reason = (f"views left out in turn are predicted better by the pose-only solve (held-out cost "
+                      f"{fit.held_out['pose_only']:.1f} vs {fit.held_out['joint']:.1f} for the joint estimate)")
+        return fit
+    fit.state, fit.accepted = st, True
+    return fit
+
+
+def _noise_report(noise: dict) -> dict:
+    return {"loop_rotation_deg": float(np.degrees(noise["pose"][0])), "loop_position_mm": noise["pose"][1] * 1e3,
+            "map_mm_median": float(np.median(noise["map"]) * 1e3), "map_mm_per_view": (noise["map"] * 1e3).tolist(),
+            "pair_summary_noise": noise["pair"], "depth_factor_sigma": noise["kappa"]}
+
+
+def _change(a, b) -> tuple[float, float, float]:
+    """Largest rotation (deg) and translation (m) change of the hand-eyes and T_b1_b2 between two states, and
+    the log-scale change."""
+    from bimanual_app.transforms import rotation_angle_between
+
+    Ts = [(a.T_e1_c1, b.T_e1_c1), (a.T_e2_c2, b.T_e2_c2), (a.T_b1_b2, b.T_b1_b2)]
+    rot = max(float(np.degrees(rotation_angle_between(p[:3, :3], q[:3, :3]))) for p, q in Ts)
+    trans = max(float(np.linalg.norm(p[:3, 3] - q[:3, 3])) for p, q in Ts)
+    return rot, trans, float(np.log(b.scale / a.scale))

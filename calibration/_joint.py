@@ -1,0 +1,267 @@
+"""One weighted estimator: the kinematic loop and the point maps in one robust least-squares problem.
+
+Unknowns ``theta`` (25 + V), corrections of a :class:`JointState`: ``T_e1_c1`` and ``T_e2_c2`` (on the
+right, in the camera frame), the log of the shared scale, ``T_b1_b2`` (on the left, in b1), ``T_b1_w`` (on
+the left) and one log depth factor ``kappa_v`` per view (a foundation model gets each view's depth scale a
+little wrong). ``T_b2_w = T_b1_b2^-1 T_b1_w``.
+
+Cost terms (``calibration._terms``), each whitened by noise levels estimated from the data:
+
+- **kinematic loop**: per view, the camera pose from the kinematics ``T_b_e X`` against the
+  reconstruction's ``T_b_w P(s)`` (rotation in rad, position in m); one noise level per type, by
+  variance components (``sum r^2 / sum (1 - h_jj)``);
+- **point maps**: point-to-plane distances between overlapping views placed by the kinematics
+  (``calibration._pointmaps``), each divided by its view's own noise (robust spread), then summarised per
+  pair of views into the 8 numbers a pair can tell (:func:`map_term`), whose noise level is estimated by
+  variance components over the pairs: correlated errors (a view's depth warp) show up there, where a
+  count of raw distances would take them for independent evidence;
+- **depth factors**: the prior ``kappa_v ~ N(0, KAPPA_SIGMA)``, each arm's mean held at zero.
+
+Exact poses with noisy maps: the loop's residuals are tiny, its weight is high, the maps barely move the
+answer. Noisy poses with maps that agree: the loop's weight is low, the maps decide.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bimanual_app.transforms import inv_T, make_T, so3_exp
+
+from ._absolute import SIGMA_FLOOR_ROT, SIGMA_FLOOR_TRANS
+from ._pointmaps import map_jacobian, map_residuals, unpack_corrections
+from ._terms import CostTerm
+
+__all__ = ["JointState", "N_CAL", "perturb", "pose_term", "map_term", "depth_prior_term", "view_map_noise"]
+
+N_CAL = 25  # calibration unknowns in theta before the per-view depth factors
+MAP_SIGMA_FLOOR = 2e-4  # m: no point map agrees better than this
+#: the per-view depth factors' prior spread: fixed, not estimated. Estimated from the fit (variance
+#: components), their spread absorbs hand-eye and scale errors (a camera moved along its optical axis looks
+#: like a depth factor): measured on rendered scenes it came out at 0.4-0.7 % where the maps had none, and
+#: the hand-eye translations 3x worse; at 0.1 % the real capture gains most of what free factors gave.
+KAPPA_SIGMA = 1e-3
+MEAN_KAPPA_SIGMA = 1e-4
+#: point-to-plane distances are weighted (Huber, knee HUBER_K of the view's noise) at each round's start
+#: and left out beyond TRIM of it: the pair summaries are plain least squares, so robustness is per point
+HUBER_K = 2.5
+TRIM = 10.0  # each arm's mean depth factor: held at zero (see depth_prior_term)
+
+
+@dataclass(frozen=True)
+class JointState:
+    """A point of the joint problem (frames as in the contract).
+
+    Attributes:
+        T_e1_c1, T_e2_c2, T_b1_b2, T_b1_w: (4, 4); scale: metric = scale x reconstruction units;
+        kappa: (V,) each view's log depth factor.
+    """
+
+    T_e1_c1: np.ndarray
+    T_e2_c2: np.ndarray
+    scale: float
+    T_b1_b2: np.ndarray
+    T_b1_w: np.ndarray
+    kappa: np.ndarray
+
+    @property
+    def calibration(self) -> tuple:
+        """``(T_e1_c1, T_e2_c2, scale, T_b1_b2)``: the start of the point-map corrections."""
+        return self.T_e1_c1, self.T_e2_c2, self.scale, self.T_b1_b2
+
+
+def perturb(st: JointState, theta: np.ndarray) -> JointState:
+    """``st`` moved by ``theta`` (25 + V,)."""
+    T1, T2, s, Tb = unpack_corrections(theta[:19], *st.calibration)
+    W1 = make_T(so3_exp(theta[19:22]), theta[22:25]) @ st.T_b1_w
+    return JointState(T1, T2, s, Tb, W1, st.kappa + theta[N_CAL:])
+
+
+def _pose_residuals(states: list[JointState], arms: np.ndarray, E: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """(S, 6 V) for each state, per view [rotation (rad, camera frame), position (m, base frame)] of the
+    kinematic loop, views in input order. All states in one batch (one rotation log for all)."""
+    from bimanual_app.transforms import so3_log
+
+    Ckin, Crec = [], []
+    sP = [np.concatenate([P[:, :3, :3], st.scale * P[:, :3, 3:]], axis=2) for st in states]  # (V, 3, 4)
+    for st, Ps in zip(states, sP):
+        X = np.where((arms == 1)[:, None, None], st.T_e1_c1, st.T_e2_c2)
+        W = np.where((arms == 1)[:, None, None], st.T_b1_w, inv_T(st.T_b1_b2) @ st.T_b1_w)
+        Ckin.append(E @ X)
+        Crec.append(W[:, :3, :3] @ Ps + np.concatenate([np.zeros((len(arms), 3, 3)), W[:, :3, 3:]], axis=2))
+    Ckin, Crec = np.stack(Ckin), np.stack(Crec)  # (S, V, 4, 4), (S, V, 3, 4)
+    rot = so3_log(np.swapaxes(Ckin[..., :3, :3], -1, -2) @ Crec[..., :3, :3])
+    trans = Crec[..., :3, 3] - Ckin[..., :3, 3]
+    return np.concatenate([rot, trans], axis=-1).reshape(len(states), -1)
+
+
+def pose_term(st: JointState, arms: np.ndarray, E: np.ndarray, P: np.ndarray, sigma: tuple[float, float]) -> CostTerm:
+    """The kinematic loop of every view.
+
+    Args:
+        arms: (V,) 1 or 2; E: (V, 4, 4) end-effector poses ``T_b_e``; P: (V, 4, 4) reconstruction poses ``T_w_c``.
+        sigma: (rotation rad, position m) starting noise levels.
+    """
+    V = len(arms)
+    n = N_CAL + V
+    steps = 1e-7 * np.eye(n)[:N_CAL]
+
+    def res(theta):
+        return _pose_residuals([perturb(st, theta)], arms, E, P)[0]
+
+    def jac(theta):  # 25 columns by forward differences, all in one batch: 6 V residuals are cheap
+        R = _pose_residuals([perturb(st, theta + d) for d in np.vstack([np.zeros(n), steps])], arms, E, P)
+        J = np.zeros((6 * V, n))
+        J[:, :N_CAL] = ((R[1:] - R[0]) / 1e-7).T
+        return J
+
+    groups = np.tile([0, 0, 0, 1, 1, 1], V)
+    return CostTerm("kinematic loop", res, jac, groups, np.array(sigma, dtype=np.float64), _update_pose,
+                    np.repeat(np.arange(V), 6))
+
+
+def _update_pose(term: CostTerm, raw: np.ndarray, red: np.ndarray) -> np.ndarray:
+    """Variance components per type, each residual's square capped at (3 sigma)^2 (a few bad views must
+    not inflate the level); a type the parameters absorb almost fully keeps its level."""
+    new = term.sigma.copy()
+    for g, floor in ((0, SIGMA_FLOOR_ROT), (1, SIGMA_FLOOR_TRANS)):
+        m = term.groups == g
+        den = red[m].sum()
+        if den > 3.0:
+            r2 = np.minimum(raw[m] ** 2, 9.0 * term.sigma[g] ** 2)
+            new[g] = max(float(np.sqrt(r2.sum() / den)), floor)
+    return new
+
+
+def _relative_motion_basis(Xa, nb, ta, tb, Xb, a_is_lo) -> np.ndarray:
+    """(K, 8) derivatives of point-to-plane residuals with respect to what a pair of views can tell: a rigid
+    motion (rotation, translation) of the lower-numbered view and the two views' log depth factors."""
+    sign = np.where(a_is_lo, 1.0, -1.0)[:, None]
+    G = np.empty((len(Xa), 8))
+    G[:, 0:3] = sign * np.cross(Xa, nb)
+    G[:, 3:6] = sign * nb
+    da, db = np.sum(nb * (Xa - ta), axis=1), -np.sum(nb * (Xb - tb), axis=1)
+    G[:, 6] = np.where(a_is_lo, da, db)
+    G[:, 7] = np.where(a_is_lo, db, da)
+    return G
+
+
+def map_term(st: JointState, views: list, pairs, sigma_v: np.ndarray, sigma_pair: float) -> CostTerm:
+    """The point maps, summarised per pair of views.
+
+    The point-to-plane distances of one pair of views only tell the pair's relative placement and depth
+    factors (8 numbers), and they share the pair's depth warp, so they are far from independent. Each
+    pair's distances, divided by the sample view's own noise ``sigma_v`` (robust spread) and Huber-weighted
+    (gross ones left out), are projected onto an orthonormal basis of those 8 directions (QR of their derivatives at the
+    round's start): 8 numbers per pair that keep everything the distances say about the unknowns. If the
+    distances were independent, each would have unit variance; ``sigma_pair`` (variance components over
+    the pairs) measures how far they are from that, correlation included.
+
+    Args:
+        views: the :class:`calibration._pointmaps.PointMapView` list; pairs: their ``MapPairs`` at ``st``.
+        sigma_v: (V,) each view's point-to-plane noise (m); sigma_pair: the pair summaries' noise level.
+    """
+    from ._pointmaps import _geometry
+
+    V = len(views)
+    zero = np.zeros(N_CAL + V)
+    _, t, _, Xa, Xb, Nb = _geometry(np.zeros(19), st.kappa, views, st.calibration, pairs)
+    raw0 = np.sum((Xa - Xb) * Nb, axis=1)
+    w = 1.0 / np.asarray(sigma_v, dtype=np.float64)[pairs.va]
+    lo, hi = np.minimum(pairs.va, pairs.vb), np.maximum(pairs.va, pairs.vb)
+    z = np.abs(raw0) * w
+    ok = z < TRIM
+    w = w * np.sqrt(np.minimum(1.0, HUBER_K / np.maximum(z, 1e-12)))  # Huber weights at the round's start
+    G = _relative_motion_basis(Xa, Nb, t[pairs.va], t[pairs.vb], Xb, pairs.va == lo) * w[:, None]
+    blocks = []
+    for key in np.unique((lo * V + hi)[ok]):
+        idx = np.flatnonzero(ok & (lo * V + hi == key))
+        if len(idx) >= 30:
+            blocks.append((idx, np.linalg.qr(G[idx])[0]))
+    S = _summary_matrix(blocks, len(raw0))
+
+    def res(theta):
+        return S @ (w * map_residuals(theta[:19], st.kappa + theta[N_CAL:], views, st.calibration, pairs))
+
+    def jac(theta):
+        J19, Jk = map_jacobian(theta[:19], st.kappa + theta[N_CAL:], views, st.calibration, pairs)
+        out = np.zeros((S.shape[0], N_CAL + V))
+        out[:, :19] = S @ (w[:, None] * J19)
+        out[:, N_CAL:] = S @ (w[:, None] * Jk)
+        return out
+
+    who = np.concatenate([np.tile([[idx[0]]], (Q.shape[1], 1)) for idx, Q in blocks]).ravel() if blocks else np.zeros(0, int)
+
+    m = len(who)
+    return CostTerm("point maps", res, jac, np.zeros(m, dtype=int), np.array([sigma_pair], dtype=np.float64),
+                    _update_pair_noise, np.stack([lo[who], hi[who]], axis=1) if m else np.zeros((0, 2), int),
+                    {"sigma_view_m": np.asarray(sigma_v, dtype=np.float64), "pairs": pairs, "blocks": len(blocks),
+                     "points": int(sum(len(i) for i, _ in blocks)), "raw": lambda: map_residuals(
+                         np.zeros(19), st.kappa, views, st.calibration, pairs), "zero": zero})
+
+
+def _summary_matrix(blocks: list, n: int):
+    """Sparse (8 B, n): row block b holds ``Q_b^T`` on the columns of its pair's distances."""
+    from scipy.sparse import csr_matrix
+
+    if not blocks:
+        return csr_matrix((0, n))
+    rows = np.concatenate([np.repeat(np.arange(8 * b, 8 * b + 8), len(idx)) for b, (idx, _) in enumerate(blocks)])
+    cols = np.concatenate([np.tile(idx, 8) for idx, _ in blocks])
+    vals = np.concatenate([Q.T.ravel() for _, Q in blocks])
+    return csr_matrix((vals, (rows, cols)), shape=(8 * len(blocks), n))
+
+
+def view_map_noise(raw: np.ndarray, va: np.ndarray, V: int) -> np.ndarray:
+    """(V,) each view's point-to-plane noise: the robust spread (1.4826 MAD) of the residuals it samples."""
+    sig = np.full(V, np.nan)
+    for v in range(V):
+        r = raw[va == v]
+        if len(r) >= 10:
+            sig[v] = 1.4826 * np.median(np.abs(r - np.median(r)))
+    fallback = np.nanmedian(sig) if np.isfinite(sig).any() else MAP_SIGMA_FLOOR
+    return np.maximum(np.where(np.isfinite(sig), sig, fallback), MAP_SIGMA_FLOOR)
+
+
+def _update_pair_noise(term: CostTerm, raw: np.ndarray, red: np.ndarray) -> np.ndarray:
+    """Variance components of the pair summaries (squares capped at (3 sigma)^2), and the views' own
+    noise re-measured for the next round."""
+    pairs = term.info["pairs"]
+    term.info["sigma_view_m"] = view_map_noise(term.info["raw"](), pairs.va, len(term.info["sigma_view_m"]))
+    den = red.sum()
+    if den < 3.0:
+        return term.sigma
+    r2 = np.minimum(raw ** 2, 9.0 * term.sigma[0] ** 2)
+    return np.array([max(float(np.sqrt(r2.sum() / den)), 1e-3)])
+
+
+def depth_prior_term(st: JointState, sigma: float, arms: np.ndarray) -> CostTerm:
+    """The prior of the per-view log depth factors: each view's ``kappa_v ~ N(0, sigma)`` (group 0), and each arm's mean factor held at zero (group 1, ``MEAN_KAPPA_SIGMA``): a
+    hand-eye translation along the optical axis moves every view of that arm nearly as a common depth
+    factor would, so only the spread within an arm is the maps' own."""
+    V = len(st.kappa)
+    A = np.zeros((2, V))
+    for i, a in enumerate((1, 2)):
+        m = arms == a
+        A[i, m] = 1.0 / max(int(m.sum()), 1)
+    D = np.vstack([np.eye(V), A])
+
+    def res(theta):
+        return D @ (st.kappa + theta[N_CAL:])
+
+    def jac(theta):
+        J = np.zeros((V + 2, N_CAL + V))
+        J[:, N_CAL:] = D
+        return J
+
+    return CostTerm("depth factors", res, jac, np.r_[np.zeros(V, dtype=int), [1, 1]],
+                    np.array([sigma, MEAN_KAPPA_SIGMA], dtype=np.float64), _update_prior,
+                    np.r_[np.arange(V), [-1, -1]])
+
+
+def _update_prior(term: CostTerm, raw: np.ndarray, red: np.ndarray) -> np.ndarray:
+    """The prior's levels are fixed (see KAPPA_SIGMA)."""
+    return term.sigma
+
+

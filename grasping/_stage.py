@@ -1,0 +1,90 @@
+"""The grasping stage as one library call: a metric cloud and its segments in, grasps.json / .png out.
+
+``bijcr grasp``, ``bijcr run`` and ``bijcr task`` (when it produces missing grasps) all call
+:func:`grasp_stage`; it raises InputError for bad input, or when no object has a usable grasp.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Callable
+
+from bimanual_app.io_utils import InputError, Problem, check_output_dir
+
+__all__ = ["GraspStage", "grasp_stage"]
+
+
+@dataclass
+class GraspStage:
+    """What :func:`grasp_stage` made: the plan, the output folder and files, and the objects' problems."""
+
+    plan: object
+    out: Path
+    files: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)
+
+
+def _no_grasp_problems(plan, seg_path: Path) -> list:
+    """Why no object has a usable grasp: each object's problems, then its notes (for an object too wide for
+    one gripper: why no two-arm pair)."""
+    problems = [p for op in plan.objects for p in op.problems]
+    problems += [Problem(str(seg_path), f"object {op.id}", n, "") for op in plan.objects for n in op.notes
+                 if not n.startswith("needs two arms")]
+    return problems or [Problem(str(seg_path), "", "no object has a grasp that passed the checks", "")]
+
+
+def grasp_stage(scene: str | Path, segments: str | Path, out: str | Path, calibration: str | Path | None = None,
+                robot: str = "piper", objects: list[int] | None = None, candidates: int = 500,
+                handover: bool = True, seed: int = 0, log: Callable[[str], None] | None = None) -> GraspStage:
+    """Plan grasps for the objects of ``segments`` in the cloud ``scene`` (scene_b1.ply or its folder).
+
+    ``calibration``: calibration.json with T_b1_b2 (default: beside the cloud; without one, the primary arm
+    only). ``candidates``: hand frames sampled per object (>= 10). The output folder is checked first.
+    Raises InputError for bad input, or listing why when no object has a usable grasp.
+    """
+    from bimanual_app.robots import load_robot
+
+    from ._antipodal import SamplerParams
+    from ._arms import make_arms
+    from ._gripper import load_gripper
+    from ._inputs import b2b_sigma, load_calibration, load_cloud, load_segments, resolve_inputs, scene_cloud
+    from ._output import draw_plan, write_grasps_json
+    from ._plan import PlanParams, plan_grasps
+
+    log = log or (lambda msg: None)
+    out = check_output_dir(out)
+    if candidates < 10:
+        raise InputError(Problem("command line", "--candidates", f"{candidates} is too few", "use 100 or more"))
+    cloud_path, cal_path = resolve_inputs(scene, calibration)
+    seg_path = Path(segments)
+    points, colors = load_cloud(cloud_path)
+    labels, seg_extra = load_segments(seg_path)
+    cloud = scene_cloud(points, labels, colors, seg_extra.get("table_plane"),
+                        {"cloud": str(cloud_path), "segments": str(seg_path)}, str(cloud_path), str(seg_path))
+    T_b1_b2, sigma = None, None
+    if cal_path is not None:
+        cal = load_calibration(cal_path)
+        T_b1_b2, sigma = cal["T_b1_b2"], b2b_sigma(cal)
+    else:
+        log("no calibration.json: planning for the primary arm only (no joint grasps or hand-overs)")
+    gripper = load_gripper(robot)
+    log(f"{len(points)} points, objects {cloud.object_ids}; gripper {gripper.robot}: opening "
+        f"{gripper.min_width * 1000:.0f}-{gripper.max_width * 1000:.0f} mm, fingers {gripper.finger_length * 1000:.0f} mm")
+    arms = make_arms(load_robot(robot), gripper, T_b1_b2)
+    params = PlanParams(sampler=replace(SamplerParams(), n_candidates=candidates, seed=seed), handover=handover)
+    if sigma is not None:  # hand-over receivers ranked by how likely they catch the object despite it
+        params = replace(params, handover_params=replace(params.handover_params, b2b_sigma_m=sigma[0],
+                                                         b2b_sigma_rad=sigma[1]))
+        log(f"base-to-base uncertainty (1 sigma, per axis): {sigma[0] * 1000:.1f} mm, "
+            f"{sigma[1] * 180 / 3.141592653589793:.2f} deg")
+    plan = plan_grasps(cloud, gripper, arms, T_b1_b2, params, objects, log)
+    warnings = [p for op in plan.objects for p in op.problems]
+    if not any(any(len(a) for a in op.reach.values()) or op.joint for op in plan.objects):
+        raise InputError(_no_grasp_problems(plan, seg_path))
+    inputs = {"cloud": str(cloud_path), "segments": str(seg_path),
+              "calibration": None if cal_path is None else str(cal_path), "robot": robot}
+    out.mkdir(parents=True, exist_ok=True)
+    write_grasps_json(out / "grasps.json", plan, inputs)
+    draw_plan(out / "grasps.png", plan, cloud.points, cloud.labels)
+    return GraspStage(plan, out, {"grasps.json": out / "grasps.json", "grasps.png": out / "grasps.png"}, warnings)

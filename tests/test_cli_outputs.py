@@ -1,0 +1,54 @@
+"""Every command checks its output path before it reads or computes anything: a file where a folder is
+wanted, or a place that cannot be written, is one line naming the path and a fix (exit code 1)."""
+
+from __future__ import annotations
+
+import pytest
+
+from bimanual_app.cli import main
+
+UNWRITABLE = "/proc/bijcr-no-such-place/out"  # /proc takes no new files, even for root
+
+
+def _commands(tmp, bad):
+    """(argv, bad path) per command; the inputs do not exist: the output is checked first."""
+    scene, cloud, seg = str(tmp / "no-scene"), str(tmp / "no.ply"), str(tmp / "no.npz")
+    return {
+        "calibrate": ["calibrate", scene, "--out", bad],
+        "segment": ["segment", cloud, "--out", bad],
+        "grasp": ["grasp", cloud, "--segments", seg, "--out", bad],
+        "reach": ["reach", scene, "--to", "0.3,0,0.2", "--use-ground-truth", "--out", bad],
+        "task --work": ["task", "joint-grasp", scene, "--work", bad],
+        "task --out": ["task", "joint-grasp", scene, "--work", str(tmp / "w"), "--out", bad],
+        "run": ["run", "scenes/demo", "--out", bad],
+        "synth": ["synth", bad, "--no-render"],
+        "reconstruct --workdir": ["reconstruct", scene, "--workdir", bad],
+    }
+
+
+COMMANDS = list(_commands(__import__("pathlib").Path("/"), "x"))
+
+
+@pytest.mark.parametrize("kind", ["file", "unwritable"])
+@pytest.mark.parametrize("command", COMMANDS)
+def test_output_folder_is_checked_first(command, kind, tmp_path, capsys):
+    if kind == "file":
+        bad = tmp_path / "a-file"
+        bad.write_text("not a folder")
+        bad = str(bad)
+    else:
+        bad = UNWRITABLE
+    argv = _commands(tmp_path, bad)[command]
+    assert main(argv) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert bad in err[0] and "fix:" in err[0], err[0]
+    assert ("not a folder" if kind == "file" else "cannot be written") in err[0]
+
+
+@pytest.mark.parametrize("kind", ["folder", "unwritable"])
+def test_reconstruct_plot_file_is_checked_first(kind, tmp_path, capsys):
+    bad = str(tmp_path) if kind == "folder" else UNWRITABLE + ".png"
+    assert main(["reconstruct", str(tmp_path / "no-scene"), "--plot", bad]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and bad in err[0] and "fix:" in err[0], err
