@@ -1,6 +1,7 @@
 """Bi-JCR calibration benchmark on ``bijcr synth`` scenes (issue 3).
 
     .venv/bin/python bench/calibration.py [--quick] [--seeds N] [--draws N] [--out docs/bench/calibration.md]
+    .venv/bin/python bench/calibration.py --only pointmaps [--quick] [--seeds N]   # the point-map sections alone
 
 Scenes: for every seed one ``bimanual_app.synth.make_synthetic_scene(..., views=10, noise="none")`` gives the
 geometry (Piper arms, bases, wrist-camera mounts, 10 planned viewpoints per arm, exact poses). Each trial
@@ -21,8 +22,15 @@ Errors against ground truth: hand-eye rotation (deg) and translation (mm) per ar
 solve time. Also the uncertainty's calibration (error / reported sigma) and ``bijcr calibrate`` wall time
 (subprocess, start-up included) on a rendered scene. Point-map refinement: on rendered paper-noise scenes (one
 per seed, 8 views per arm), the joint solve alone against the default refined with the point maps: errors,
-the metric cloud's distance to the true surfaces, error / sigma of the refined outputs, time. Targets print
-PASS/FAIL.
+the metric cloud's distance to the true surfaces, error / sigma of the refined outputs, time. Point maps as
+hard as a real model's (issue 21): rendered scenes with paper pose noise and ``map_noise="fm"`` (per-view
+depth scale 1 %, quadratic warp 0.5 %, correlated noise 0.3 %; 8 views per arm), the default against the
+pose-only solution (``CalibrationOptions(point_maps=False)``) and OpenCV Park told the true scale; and
+scenes with exact poses and 0.1 % white depth noise, the default against the pose-only solution; with
+RMS(error / sigma) per row. Targets print PASS/FAIL. ``--only pointmaps`` runs the point-map sections
+alone (they print; saved only with an explicit ``--out``). Only the public API (``calibrate``,
+``CalibrationOptions``, the result's fields) is used for those rows, so they keep working whatever the
+estimator does inside.
 """
 
 from __future__ import annotations
@@ -272,6 +280,111 @@ def point_map_trial(path: Path) -> dict:
     return out
 
 
+HARD_TARGETS = {"rot_vs_park": 0.8, "mm_vs_park": 1.0, "scale_pct": 1.0, "b2b_deg": 1.0, "b2b_mm": 10.0,
+                "exact_vs_pose": 1.2, "never_worse": 1.1, "z_rms": (0.7, 1.4)}
+EXACT_FLOOR = (0.001, 0.01)  # deg, mm: numerical floor of the exact-pose comparison (the pose-only error is ~1e-10)
+
+
+def hard_map_scenes(tmp: Path, seeds: list[int], quick: bool) -> tuple[list[Path], list[Path]]:
+    """Rendered scenes for issue 21's rows: paper pose noise with fm-like maps, and exact poses with 0.1 %
+    white depth noise (8 views per arm, 3 objects)."""
+    from bimanual_app.synth import MapNoise, make_synthetic_scene
+
+    kw = {"image_size": (320, 240), "pointmap_size": (80, 60)} if quick else {}
+    white = MapNoise("white 0.1%", 0.0, 0.0, 0.001, 0.0)
+    fm, ex = [], []
+
+    def make(name: str, seed: int, **extra) -> Path:
+        # a layout where 8 feasible viewpoints per arm do not exist raises: take the next seed (logged)
+        for k in range(5):
+            try:
+                p = make_synthetic_scene(tmp / name, seed=seed + 10 * k, views=8, objects=3, render=True,
+                                         progress=False, preview=False, overwrite=True, **kw, **extra)
+                log(f"hard point maps: {name} = scene seed {seed + 10 * k}")
+                return p
+            except RuntimeError as exc:
+                log(f"hard point maps: seed {seed + 10 * k} has no 8 feasible views ({str(exc)[:60]}...), next seed")
+        raise RuntimeError(f"no feasible scene near seed {seed}")
+
+    for s in seeds:
+        fm.append(make(f"fm{s}", 300 + s, noise="paper", map_noise="fm"))
+        ex.append(make(f"ex{s}", 400 + s, noise="none", map_noise=white))
+    return fm, ex
+
+
+def hard_map_trial(path: Path, park: bool) -> dict:
+    """point_map_trial's two calibrations ("pose only" = point_maps=False, "default") and, with ``park``,
+    OpenCV Park per arm told the true scale, on one scene."""
+    r = point_map_trial(path)
+    out = {"pose only": r["joint solve"], "default": r["refined"]}
+    if park:
+        tr = from_scene(path)
+        e = errors(run_method("OpenCV Park (true scale)", tr), tr)
+        out["OpenCV Park (true scale)"] = {"rot": e["rot"], "mm": e["mm"], "scale": e["scale"], "b2b_deg": e["b2b_deg"],
+                                           "b2b_mm": e["b2b_mm"], "z": None}
+    return out
+
+
+def _z_rms(rows: list[dict]) -> tuple[float, dict]:
+    """RMS(error / sigma) over every output of the rows, and per output."""
+    if any(r.get("z") is None for r in rows):
+        return float("nan"), {}
+    per = {k: np.concatenate([np.asarray(r["z"][k], float) for r in rows]) for k in rows[0]["z"]}
+    allz = np.concatenate(list(per.values()))
+    return float(np.sqrt(np.mean(allz ** 2))), {k: float(np.sqrt(np.mean(v ** 2))) for k, v in per.items()}
+
+
+def hard_map_report(fm_rows: list[dict], ex_rows: list[dict]) -> tuple[list[str], list[tuple[str, bool, str]]]:
+    """Report lines and targets (name, ok, detail) of issue 21's synthetic rows."""
+    L = ["", "## Point maps as hard as a real model's (issue 21; rendered scenes, 8 views per arm)", "",
+         "fm-like maps: paper pose noise (1.5 deg / 1 cm) and `map_noise=\"fm\"` point maps (organised depth maps "
+         "built with each view's noisy pose, per-view depth scale error 1 %, quadratic warp 0.5 %, correlated "
+         "noise 0.3 %). Exact poses: noise none, point maps with 0.1 % white depth noise. Means over the scenes "
+         "(both arms for the hand-eyes). RMS(error/sigma): over all outputs (hand-eye rotation and translation, "
+         "scale, base-to-base rotation and translation) of the row's scenes, per output in brackets "
+         "(he rot / he trans / scale / b2b rot / b2b trans).", "",
+         "| rows | calibration | hand-eye rot deg | hand-eye mm | scale % | base-to-base deg / mm | RMS(error/sigma) |",
+         "| --- | --- | --- | --- | --- | --- | --- |"]
+    m = lambda rs, f: float(np.mean([np.mean(r[f]) for r in rs]))  # noqa: E731
+    means = {}
+    for title, rows in (("paper pose noise, fm-like maps", fm_rows), ("exact poses, 0.1 % depth noise", ex_rows)):
+        for name in rows[0]:
+            rs = [row[name] for row in rows]
+            z, per = _z_rms(rs)
+            zs = "" if not np.isfinite(z) else f"{z:.2f} ({' / '.join(f'{v:.2f}' for v in per.values())})"
+            means[(title, name)] = {f: m(rs, f) for f in ("rot", "mm", "scale", "b2b_deg", "b2b_mm")} | {"z": z}
+            mm_ = means[(title, name)]
+            L.append(f"| {title} | {name} | {mm_['rot']:.3f} | {mm_['mm']:.2f} | {mm_['scale']:.3f} | "
+                     f"{mm_['b2b_deg']:.3f} / {mm_['b2b_mm']:.2f} | {zs} |")
+    T, H = [], HARD_TARGETS
+    fm = "paper pose noise, fm-like maps"
+    d, po, pk = means[(fm, "default")], means[(fm, "pose only")], means[(fm, "OpenCV Park (true scale)")]
+    T.append((f"fm-like maps: hand-eye rotation <= {H['rot_vs_park']}x OpenCV Park told the true scale",
+              d["rot"] <= H["rot_vs_park"] * pk["rot"], f"{d['rot']:.3f} vs {H['rot_vs_park']} x {pk['rot']:.3f} deg"))
+    T.append((f"fm-like maps: hand-eye translation <= {H['mm_vs_park']}x OpenCV Park told the true scale",
+              d["mm"] <= H["mm_vs_park"] * pk["mm"], f"{d['mm']:.2f} vs {pk['mm']:.2f} mm"))
+    T.append((f"fm-like maps: scale within {H['scale_pct']:g} %", d["scale"] <= H["scale_pct"], f"{d['scale']:.3f} %"))
+    T.append((f"fm-like maps: base-to-base within {H['b2b_deg']:g} deg / {H['b2b_mm']:g} mm",
+              d["b2b_deg"] <= H["b2b_deg"] and d["b2b_mm"] <= H["b2b_mm"], f"{d['b2b_deg']:.3f} deg / {d['b2b_mm']:.2f} mm"))
+    ex = "exact poses, 0.1 % depth noise"
+    de, pe = means[(ex, "default")], means[(ex, "pose only")]
+    T.append((f"exact poses, 0.1 % depth noise: hand-eye within {H['exact_vs_pose']}x of the pose-only solution "
+              f"(+ {EXACT_FLOOR[0]:g} deg / {EXACT_FLOOR[1]:g} mm numerical floor)",
+              de["rot"] <= H["exact_vs_pose"] * pe["rot"] + EXACT_FLOOR[0] and de["mm"] <= H["exact_vs_pose"] * pe["mm"] + EXACT_FLOOR[1],
+              f"{de['rot']:.2e} vs {pe['rot']:.2e} deg, {de['mm']:.2e} vs {pe['mm']:.2e} mm"))
+    for title, a, b, floor in ((fm, d, po, (0.0, 0.0)), (ex, de, pe, EXACT_FLOOR)):
+        ok = all(a[f] <= H["never_worse"] * b[f] + fl for f, fl in (("b2b_deg", floor[0]), ("b2b_mm", floor[1]),
+                                                                        ("rot", floor[0]), ("mm", floor[1])))
+        T.append((f"{title}: never worse, default within {H['never_worse']}x of pose only (base-to-base, hand-eye)", ok,
+                  f"b2b {a['b2b_deg']:.3f} / {a['b2b_mm']:.2f} vs {b['b2b_deg']:.3f} / {b['b2b_mm']:.2f}; "
+                  f"hand-eye {a['rot']:.3f} / {a['mm']:.2f} vs {b['rot']:.3f} / {b['mm']:.2f} (deg / mm)"))
+    lo, hi = H["z_rms"]
+    for title in (fm, ex):
+        z = means[(title, "default")]["z"]
+        T.append((f"{title}: uncertainty honest, RMS(error/sigma) of the default in [{lo}, {hi}]", lo <= z <= hi, f"{z:.2f}"))
+    return L, T
+
+
 def cli_timing(scene: Path, reps: int, extra: tuple = ()) -> dict:
     """Wall and CPU (user + sys of the child) seconds of `bijcr calibrate` and of the `bijcr check` reference."""
     import resource
@@ -300,8 +413,11 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="one seed, one noise draw, small rendered scene (< 1 min)")
     ap.add_argument("--seeds", type=int, default=None, help="scenes (default 3, quick 1)")
     ap.add_argument("--draws", type=int, default=None, help="noise draws per scene and configuration (default 3, quick 1)")
-    ap.add_argument("--out", default=str(ROOT / "docs" / "bench" / "calibration.md"), help="where to save the report")
+    ap.add_argument("--out", default=None, help="where to save the report (default docs/bench/calibration.md; "
+                    "with --only, nothing is saved unless given)")
     ap.add_argument("--no-save", action="store_true")
+    ap.add_argument("--only", choices=["pointmaps"], help="run only these sections (pointmaps: the point-map "
+                    "refinement rows and issue 21's hard point-map rows)")
     args = ap.parse_args(argv)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     seeds = list(range(args.seeds if args.seeds else (1 if args.quick else 3)))
@@ -310,6 +426,10 @@ def main(argv=None) -> int:
     from bimanual_app.synth import make_synthetic_scene
 
     tmp = Path(tempfile.mkdtemp(prefix="bijcr-bench-calib-"))
+    if args.only == "pointmaps":
+        return _only_pointmaps(args, seeds, tmp, t_start)
+    if args.out is None:
+        args.out = str(ROOT / "docs" / "bench" / "calibration.md")
     geos = []
     for s in seeds:
         render = s == seeds[0]
@@ -423,7 +543,24 @@ def main(argv=None) -> int:
           "after its coarse rounds. The paper-noise rows are what a real capture costs.", "",
           f"Load average (1 min) when the CLI was timed: {load0:.1f} on {os.cpu_count()} cores (other jobs share the"
           " machine: wall times above CPU times are waiting for a core)."]
-    # point-map refinement
+    L += point_map_lines(seeds, pm_rows)
+    hard_fm, hard_ex = hard_map_scenes(tmp, seeds, args.quick)
+    hl, hard_targets = hard_map_report([hard_map_trial(p, True) for p in hard_fm], [hard_map_trial(p, False) for p in hard_ex])
+    L += hl
+    # targets
+    T = []
+
+    def target(name, ok, detail):
+        T.append(f"| {name} | {detail} | {'PASS' if ok else 'FAIL'} |")
+
+    none_rows = [r for (k, m), rows in store.items() if m == "bijcr (absolute)" and k[0] == "none" and k[2] == 0
+                 for r in rows]
+    return _finish_full(args, L, T, target, none_rows, store, k9, ct, cal_med, load0, pm_rows, hard_targets, tmp, t_start)
+
+
+def point_map_lines(seeds: list[int], pm_rows: list[dict]) -> list[str]:
+    """The point-map refinement section (joint solve vs refined on paper-noise scenes)."""
+    L = []
     L += ["", "## Point-map refinement (rendered scenes, paper noise, 8 views per arm)", "",
           "The joint solve alone (`--no-point-maps`, the cloud placed with `T_b1_w`) against the default (refined "
           "with the point maps, the cloud placed by the kinematics). Cloud error: distance of the metric cloud's "
@@ -449,14 +586,52 @@ def main(argv=None) -> int:
     for k in pm_rows[0]["refined"]["z"]:
         v = np.concatenate([row["refined"]["z"][k] for row in pm_rows])
         L.append(f"| {k} | {np.sqrt(np.mean(np.square(v))):.2f} |")
-    # targets
-    T = []
+    return L
 
-    def target(name, ok, detail):
-        T.append(f"| {name} | {detail} | {'PASS' if ok else 'FAIL'} |")
 
-    none_rows = [r for (k, m), rows in store.items() if m == "bijcr (absolute)" and k[0] == "none" and k[2] == 0
-                 for r in rows]
+def _point_map_target(pm_rows: list[dict]) -> tuple[str, bool, str]:
+    ref_pm = [row["refined"] for row in pm_rows]
+    js_pm = [row["joint solve"] for row in pm_rows]
+    return ("point-map refinement: cloud error below the joint solve's on every scene (median distance)",
+            all(r["cloud_med"] < j["cloud_med"] for r, j in zip(ref_pm, js_pm)),
+            ", ".join(f"{j['cloud_med']:.1f} -> {r['cloud_med']:.1f} mm" for r, j in zip(ref_pm, js_pm)))
+
+
+def _only_pointmaps(args, seeds: list[int], tmp: Path, t_start: float) -> int:
+    """``--only pointmaps``: the point-map refinement section and issue 21's hard point-map rows."""
+    from bimanual_app.synth import make_synthetic_scene
+
+    pm_rows = []
+    for s in seeds:
+        log(f"point-map refinement: rendered scene seed {200 + s} (paper noise, 8 views per arm)")
+        kw = {"image_size": (320, 240), "pointmap_size": (80, 60)} if args.quick else {}
+        p = make_synthetic_scene(tmp / f"pm{s}", seed=200 + s, views=8, objects=3, noise="paper", render=True,
+                                 progress=False, preview=False, **kw)
+        pm_rows.append(point_map_trial(p))
+    hard_fm, hard_ex = hard_map_scenes(tmp, seeds, args.quick)
+    hl, hard_targets = hard_map_report([hard_map_trial(p, True) for p in hard_fm], [hard_map_trial(p, False) for p in hard_ex])
+    cmd = "nice .venv/bin/python bench/calibration.py --only pointmaps" + (" --quick" if args.quick else "")
+    L = [f"Command: `{cmd}`", "", f"Seeds {seeds} (scenes 200+, 300+, 400+ seed). Machine: 2 shared CPU cores."]
+    L += point_map_lines(seeds, pm_rows) + hl
+    T = [_point_map_target(pm_rows)] + hard_targets
+    L += ["", "## Targets (point maps)", "", "| target | measured | result |", "| --- | --- | --- |"]
+    L += [f"| {n} | {d} | {'PASS' if ok else 'FAIL'} |" for n, ok, d in T]
+    L += ["", f"Total bench time {time.perf_counter() - t_start:.0f} s."]
+    text = "\n".join(L) + "\n"
+    print(text)
+    if args.out and not args.no_save:
+        from calibration._files import write_text
+
+        write_text(args.out, text)
+        log(f"saved {args.out}")
+    import shutil
+
+    shutil.rmtree(tmp, ignore_errors=True)
+    return 0
+
+
+def _finish_full(args, L, T, target, none_rows, store, k9, ct, cal_med, load0, pm_rows, hard_targets, tmp, t_start) -> int:
+    """Targets, saving and clean-up of the full run."""
     nr_ok = [r for r in none_rows if "fail" not in r]
     mx = lambda f: max(allvals(nr_ok, f)) if nr_ok else float("inf")  # noqa: E731
     target("no noise: hand-eye within 0.05 deg and 1.5 mm (max over trials)", len(nr_ok) == len(none_rows)
@@ -489,13 +664,11 @@ def main(argv=None) -> int:
            f"{st9 * 1000:.1f} ms")
     target("bijcr calibrate < 3 s wall incl. start-up (median)", cal_med < 3,
            f"{cal_med:.2f} s wall, {ct['calibrate_cpu']:.2f} s CPU (load {load0:.1f})")
-    ref_pm = [row["refined"] for row in pm_rows]
-    js_pm = [row["joint solve"] for row in pm_rows]
-    target("point-map refinement: cloud error below the joint solve's on every scene (median distance)",
-           all(r["cloud_med"] < j["cloud_med"] for r, j in zip(ref_pm, js_pm)),
-           ", ".join(f"{j['cloud_med']:.1f} -> {r['cloud_med']:.1f} mm" for r, j in zip(ref_pm, js_pm)))
-    L += ["", "## Targets (issue 3; the last row checks the point-map refinement)", "", "| target | measured | result |",
-          "| --- | --- | --- |"] + T
+    target(*_point_map_target(pm_rows))
+    for n, ok, d in hard_targets:
+        target(n, ok, d)
+    L += ["", "## Targets (issue 3; then the point-map refinement, then issue 21's hard point-map rows)", "",
+          "| target | measured | result |", "| --- | --- | --- |"] + T
     L += ["", f"Total bench time {time.perf_counter() - t_start:.0f} s."]
     text = "\n".join(L) + "\n"
     print(text)

@@ -206,18 +206,26 @@ def covariance(T_b_e: list, T_w_c: list, st: AbsoluteState, sigma: tuple[float, 
     r = whitened(T_b_e, T_w_c, st, sigma)
     m, n = J.shape
     vf = float(r @ r) / (m - n) if m > n else 1.0
-    H = J.T @ J
+    cov, cond = normal_covariance(J.T @ J)
+    return cov * vf, cond, vf
+
+
+def normal_covariance(H: np.ndarray) -> tuple[np.ndarray, float]:
+    """``(H^-1 (n, n), condition number)`` of a normal matrix ``H`` (n, n), column-scaled, with every parameter
+    that moves along an undetermined direction (eigenvalue below ``NULL_RTOL`` of the largest) given an
+    infinite variance (``inf`` on the diagonal, its off-diagonal terms 0), never the pseudo-inverse's small
+    number."""
     d = np.sqrt(np.maximum(np.diag(H), 1e-300))
     ev, V = np.linalg.eigh(H / d[:, None] / d[None, :])
     cond = float(ev[-1] / max(ev[0], 1e-300))
     null = ev < NULL_RTOL * ev[-1]
     inv = np.where(null, 0.0, 1.0 / np.where(null, 1.0, ev))
-    cov = (V * inv) @ V.T / d[:, None] / d[None, :] * vf
+    cov = (V * inv) @ V.T / d[:, None] / d[None, :]
     free = np.any(np.abs(V[:, null]) > NULL_COMPONENT, axis=1)
     cov[free, :] = 0.0
     cov[:, free] = 0.0
     cov[free, free] = np.inf
-    return cov, cond, vf
+    return cov, cond
 
 
 def refine_absolute(T_b_e: list, T_w_c: list, start: AbsoluteState, sigma: tuple[float, float] | None = None,

@@ -123,7 +123,7 @@ POINT_MAP_SIGMA_INFLATION = {"hand_eye_rotation": 10.0, "hand_eye_translation": 
 
 def _refine_with_point_maps(scene, result: CalibrationResult, options: CalibrationOptions | None = None,
                             progress=None) -> dict:
-    """Refine ``result`` in place with the point maps (``calibration._pointmap_refine``, the default estimator);
+    """Refine ``result`` in place with the point maps (``calibration._pointmap_refine``, ``estimator="refine"``);
     returns the report that
     also goes to ``result.info["point_maps"]``.
 
@@ -215,7 +215,7 @@ def _refined_uncertainty(result, cov: np.ndarray, before: dict) -> dict:
 
 def refine_point_maps(scene, result: CalibrationResult, options: CalibrationOptions | None = None,
                       progress=None) -> dict:
-    """The point-map stage of :func:`calibrate`: ``options.estimator`` "refine" (default) or "joint"."""
+    """The point-map stage of :func:`calibrate`: ``options.estimator`` "joint" (default) or "refine"."""
     opts = options or CalibrationOptions()
     if opts.estimator == "joint":
         return _estimate_jointly(scene, result, options, progress)
@@ -317,21 +317,21 @@ def _apply(scene, result, fit, rows, arms, E, options) -> None:
 
 def _joint_uncertainty(result, cov: np.ndarray) -> dict:
     """The uncertainty dict of every output from the joint problem's covariance (25 + V, 25 + V)."""
-    from ._uncertainty import _block
+    from ._uncertainty import _block, propagate
 
     C = np.asarray(cov, dtype=np.float64)
     u = dict(result.uncertainty or {})
     for name, k0, T in (("T_e1_c1", 0, result.T_e1_c1), ("T_e2_c2", 6, result.T_e2_c2)):
         G = np.zeros((6, 6))  # right correction: rotvec R w, translation R v
         G[:3, :3] = G[3:, 3:] = T[:3, :3]
-        u[name] = _block(G @ C[k0:k0 + 6, k0:k0 + 6] @ G.T)
-    sd = float(np.sqrt(max(C[12, 12], 0.0)))
+        u[name] = _block(propagate(G, C[k0:k0 + 6, k0:k0 + 6]))
+    sd = float(np.sqrt(C[12, 12])) if np.isfinite(C[12, 12]) else float("inf")
     u["scale"] = {"std": result.scale * sd, "percent": 100 * sd}
     for name, k0, T in (("T_b1_b2", 13, result.T_b1_b2), ("T_b1_w", 19, result.T_b1_w)):
         t = T[:3, 3]
         G = np.eye(6)  # left correction: rotvec w, translation w x t + v
         G[3:, :3] = -np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
-        u[name] = _block(G @ C[k0:k0 + 6, k0:k0 + 6] @ G.T)
+        u[name] = _block(propagate(G, C[k0:k0 + 6, k0:k0 + 6]))
     u["estimator"] = ("joint weighted estimate (kinematic loop + point maps): linearised covariance with the noise "
                       "levels estimated from the data, point maps down-weighted by their correlation factor; "
                       f"T_b2_w: {(result.uncertainty or {}).get('estimator', 'pose-only solve')}")

@@ -9,7 +9,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import _joint as jm
-from ._guard import held_out_cost
+from ._absolute import normal_covariance
+from ._guard import held_out_cost, jackknife_covariance
 from ._pointmaps import find_pairs, map_residuals, view_camera_poses
 from ._terms import CostTerm, solve_terms, stack, update_terms
 
@@ -167,6 +168,7 @@ def _held_out(terms_joint, terms_pose, V: int) -> dict:
     theta = np.zeros(jm.N_CAL + V)
     out = {}
     n_pose = len(terms_joint[0].groups)
+    shifts = None
     for name, terms in (("joint", terms_joint), ("pose_only", terms_pose)):
         r, J = stack(terms, theta)
         rows = _view_rows(terms)
@@ -177,8 +179,11 @@ def _held_out(terms_joint, terms_pose, V: int) -> dict:
             loop = np.zeros(len(r), dtype=bool)
             loop[:n_pose] = True
             blocks = [(loop, np.arange(jm.N_CAL)), (~loop, np.arange(jm.N_CAL, jm.N_CAL + V))]
-        out[name] = float(held_out_cost(J, r, rows, blocks, F_SCALE).sum())
-    return out
+        cost, shift = held_out_cost(J, r, rows, blocks, F_SCALE)
+        out[name] = float(cost.sum())
+        if name == "joint":
+            shifts = shift
+    return out, shifts
 
 
 def _fit_depth_only(st, views, pairs, arms, E, P, noise):
@@ -264,15 +269,28 @@ def _conclude(start, st, views, pairs, arms, E, P, noise, rounds, active) -> Joi
         return fit
     terms = _terms(st, views, pairs, arms, E, P, noise)
     pose_st = _fit_depth_only(start, views, pairs, arms, E, P, noise)
-    fit.held_out = _held_out(terms, _terms(pose_st, views, pairs, arms, E, P, noise), V)
+    fit.held_out, shifts = _held_out(terms, _terms(pose_st, views, pairs, arms, E, P, noise), V)
     _, J = stack(terms, np.zeros(jm.N_CAL + V))
-    fit.covariance = np.linalg.pinv(J.T @ J)
+    fit.covariance = _covariance(J, shifts)
     if fit.held_out["joint"] >= fit.held_out["pose_only"]:
         fit.reason = (f"views left out in turn are predicted better by the pose-only solve (held-out cost "
                       f"{fit.held_out['pose_only']:.1f} vs {fit.held_out['joint']:.1f} for the joint estimate)")
         return fit
     fit.state, fit.accepted = st, True
     return fit
+
+
+def _covariance(J: np.ndarray, shifts: np.ndarray) -> np.ndarray:
+    """(25 + V, 25 + V) covariance of the corrections: the delete-one-view jackknife's for the calibration
+    (views are the independent units; the normal matrix counts a view's correlated residuals as independent
+    evidence), the normal matrix's for the depth factors, and ``inf`` where the data determine nothing."""
+    C = normal_covariance(J.T @ J)[0]
+    jack = jackknife_covariance(shifts[:, :jm.N_CAL])
+    finite = np.isfinite(np.diag(C)[:jm.N_CAL])
+    blk = C[:jm.N_CAL, :jm.N_CAL]
+    blk[np.ix_(finite, finite)] = jack[np.ix_(finite, finite)]
+    C[:jm.N_CAL, :jm.N_CAL] = blk
+    return C
 
 
 def _noise_report(noise: dict) -> dict:

@@ -15,12 +15,13 @@ import numpy as np
 
 from ._terms import robust_cost
 
-__all__ = ["held_out_cost"]
+__all__ = ["held_out_cost", "jackknife_covariance"]
 
 
 def held_out_cost(J: np.ndarray, r: np.ndarray, view_of_row: np.ndarray, fitted_by: list[tuple[np.ndarray, np.ndarray]],
-                  f_scale: float) -> np.ndarray:
-    """(V,) held-out cost of each view.
+                  f_scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(cost (V,), shift (V, n))``: the held-out cost of each view and how far the estimate moves without it
+    (the delete-one-view jackknife's replicates, see :func:`jackknife_covariance`).
 
     Args:
         J: (M, n) whitened Jacobian of all residuals at the estimate; r: (M,) whitened residuals there.
@@ -36,6 +37,7 @@ def held_out_cost(J: np.ndarray, r: np.ndarray, view_of_row: np.ndarray, fitted_
     vo = np.asarray(view_of_row).reshape(len(r), -1)
     V = int(vo.max()) + 1
     out = np.zeros(V)
+    shift = np.zeros((V, J.shape[1]))
     for v in range(V):
         mine = np.any(vo == v, axis=1)
         pred = r[mine].copy()
@@ -49,5 +51,16 @@ def held_out_cost(J: np.ndarray, r: np.ndarray, view_of_row: np.ndarray, fitted_
             g = Jb.T @ r[rows] - Jh.T @ rh
             d = np.linalg.lstsq(H, -g, rcond=1e-12)[0]
             pred += J[np.ix_(mine, cols)] @ d
+            shift[v, cols] += d
         out[v] = float(np.sum(robust_cost(pred, f_scale)))
-    return out
+    return out, shift
+
+
+def jackknife_covariance(shift: np.ndarray) -> np.ndarray:
+    """(n, n) delete-one-view jackknife covariance ``(V - 1) / V sum (d_v - mean d)(d_v - mean d)^T`` from the
+    estimate's shifts without each view (V, n). The views are the independent units: errors shared by the
+    residuals of one view (its depth warp, its pose error) are counted once, which the normal matrix of
+    residuals assumed independent cannot do."""
+    V = len(shift)
+    dev = shift - shift.mean(axis=0)
+    return (V - 1) / V * dev.T @ dev

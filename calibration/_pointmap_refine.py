@@ -1,8 +1,9 @@
-"""Point-map refinement of the pose-only solve (the default estimator, ``CalibrationOptions.estimator="refine"``):
-make the views' point maps agree when each is placed by FK, the kinematic loop left out.
+"""Point-map refinement of the pose-only solve (``CalibrationOptions.estimator="refine"``, the previous
+default): make the views' point maps agree when each is placed by FK, the kinematic loop left out.
 
-The joint weighted estimator (``calibration._joint``, ``estimator="joint"``) replaces it once it is measured
-to be at least as good on the rendered scenes; see docs/calibration.md.
+It trusts the kinematics and the maps completely, which holds on the emulator's rendered scenes and not on
+real photographs or foundation-model-like maps; the default is the joint weighted estimator
+(``calibration._joint``). Kept as an option for comparison (docs/calibration.md has both measured).
 
 The joint solve uses only the camera *poses* of the reconstruction, and each of them carries its own
 error (about 1.5 deg / 1 cm for a foundation model). The point maps carry much more: every view sees the

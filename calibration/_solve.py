@@ -59,11 +59,11 @@ class CalibrationOptions:
             refine the joint solve so that the views' point maps, placed by the kinematics, agree
             (``calibration._pointmaps``), and build the cloud from the views placed by the kinematics.
             Arrays-only :func:`solve_bijcr` has no point maps and ignores it.
-        estimator: how the point maps are used: "refine" (default: an ICP of the 19 calibration numbers with
-            every view placed by the kinematics, the kinematic loop left out, ``calibration._pointmap_refine``)
-            or "joint" (one weighted estimate of the kinematic loop and the point maps with per-view depth
-            factors, noise levels from the data and a held-out check against the pose-only solve,
-            ``calibration._joint``; docs/calibration.md has both measured).
+        estimator: how the point maps are used: "joint" (default: one weighted estimate of the kinematic
+            loop and the point maps with per-view depth factors, noise levels from the data and a held-out
+            check against the pose-only solve, ``calibration._joint``) or "refine" (the previous estimator:
+            an ICP of the 19 calibration numbers with every view placed by the kinematics and the loop left
+            out, ``calibration._pointmap_refine``; docs/calibration.md has both measured).
     """
 
     alpha: float = 0.5
@@ -82,7 +82,7 @@ class CalibrationOptions:
     on_degenerate: str = "raise"
     uncertainty: str = "jacobian"
     point_maps: bool = True
-    estimator: str = "refine"
+    estimator: str = "joint"
 
     def __post_init__(self):
         if self.pairs not in ("all", "consecutive"):

@@ -45,9 +45,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-point-maps", action="store_true",
                    help="skip the point-map refinement: keep the joint solve's values and build the cloud from "
                         "the reconstruction's camera poses (the paper's cloud)")
-    p.add_argument("--estimator", choices=("refine", "joint"), default="refine",
-                   help="how the point maps are used: 'refine' (default) or 'joint' (one weighted estimate of the "
-                        "kinematic loop and the point maps, checked on held-out views; docs/calibration.md)")
+    p.add_argument("--estimator", choices=("joint", "refine"), default="joint",
+                   help="how the point maps are used: 'joint' (default: one weighted estimate of the kinematic loop "
+                        "and the point maps, checked on held-out views) or 'refine' (the previous point-map ICP "
+                        "that trusts the kinematics; docs/calibration.md)")
     p.add_argument("--no-figure", action="store_true", help="skip calibration.png and point_maps.png")
     p.add_argument("--quiet", action="store_true", help="print only errors and the output folder")
 

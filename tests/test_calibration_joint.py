@@ -96,12 +96,13 @@ def test_held_out_downdate_equals_refitting_without_the_view():
     view = np.repeat(np.arange(6), 10)
     x = np.linalg.lstsq(J, y, rcond=None)[0]
     r = J @ x - y
-    got = held_out_cost(J, r, view, [(np.ones(60, bool), np.arange(4))], f_scale=1e3)
+    got, shift = held_out_cost(J, r, view, [(np.ones(60, bool), np.arange(4))], f_scale=1e3)
     want = []
     for v in range(6):
         keep = view != v
         xv = np.linalg.lstsq(J[keep], y[keep], rcond=None)[0]
         want.append(np.sum((J[~keep] @ xv - y[~keep]) ** 2))
+        assert np.allclose(shift[v], xv - x)
     assert np.allclose(got, want, rtol=1e-5)
 
 

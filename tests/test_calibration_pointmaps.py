@@ -1,4 +1,4 @@
-"""Point-map refinement of the joint solve (calibration._pointmaps): on a rendered scene at the paper's
+"""Point-map refinement of the joint solve (``estimator="refine"``, calibration._pointmap_refine): on a rendered scene at the paper's
 noise it must bring the views' point maps, placed by the kinematics, onto the true surfaces; it must be
 refused, leaving the joint solve as it was, when the point maps cannot support it."""
 
@@ -11,6 +11,10 @@ import pytest
 
 from bimanual_app.transforms import inv_T, make_T, rotation_angle_between, so3_exp
 from tests._synth_fixtures import synth_none  # noqa: F401  (fixture)
+
+from calibration import CalibrationOptions as _Options
+
+REFINE = _Options(estimator="refine")  # the previous point-map estimator, tested as it was
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +44,7 @@ def test_refinement_brings_the_cloud_onto_the_true_surfaces(paper_scene):
     scene = load_scene(paper_scene)
     plain = calibrate(scene, options=CalibrationOptions(point_maps=False))
     lines = []
-    refined = calibrate(scene, progress=lines.append)
+    refined = calibrate(scene, options=REFINE, progress=lines.append)
     pm = refined.info["point_maps"]
     assert pm["accepted"], pm["reason"]
     assert pm["median_after_mm"] < pm["median_before_mm"]
@@ -80,7 +84,7 @@ def test_unusable_point_maps_leave_the_joint_solve_as_it_was(paper_scene):
     P = rec.pts3d.reshape(len(rec.pts3d), -1, 3)
     rec.pts3d = np.stack([p[rng.permutation(len(p))] for p in P]).reshape(rec.pts3d.shape)
     rec.pts3d += rng.normal(scale=0.2, size=rec.pts3d.shape).astype(rec.pts3d.dtype)
-    res = calibrate(scene)
+    res = calibrate(scene, options=REFINE)
     pm = res.info["point_maps"]
     assert not pm["accepted"] and pm["reason"]
     assert any("point-map refinement not applied" in w for w in res.warnings)
@@ -126,7 +130,7 @@ def test_kinematic_anchor_moves_each_map_with_its_camera():
 def test_cli_writes_the_refinement_and_can_skip_it(paper_scene, tmp_path, capsys):
     from bimanual_app.cli import main
 
-    assert main(["calibrate", str(paper_scene), "--out", str(tmp_path / "on")]) == 0
+    assert main(["calibrate", str(paper_scene), "--out", str(tmp_path / "on"), "--estimator", "refine"]) == 0
     out = capsys.readouterr().out
     assert "point-map refinement: overlapping views" in out
     cal = json.loads((tmp_path / "on" / "calibration.json").read_text())
@@ -172,7 +176,7 @@ def test_maps_a_pinhole_does_not_fit_are_matched_by_nearest_neighbour(paper_scen
     used = []
     real = pm._correspondences
     monkeypatch.setattr(pm, "_correspondences", lambda *a, **k: used.append(1) or real(*a, **k))
-    res = calibrate(scene)
+    res = calibrate(scene, options=REFINE)
     assert used and res.info["point_maps"]["accepted"], res.info["point_maps"]["reason"]
     e_plain = _cloud_error_mm(paper_scene, scene_cloud(scene, plain)[0])
     e_ref = _cloud_error_mm(paper_scene, scene_cloud(scene, res)[0])
@@ -186,7 +190,7 @@ def test_exact_capture_keeps_its_exact_calibration(synth_none):
     from calibration import calibrate
 
     scene = load_scene(synth_none)
-    res = calibrate(scene)
+    res = calibrate(scene, options=REFINE)
     pm = res.info["point_maps"]
     assert pm["accepted"] or pm["reason"]
     gt = scene.ground_truth

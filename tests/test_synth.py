@@ -285,3 +285,70 @@ def test_cli_refuses_bad_arguments_and_foreign_folders(tmp_path, capsys):
     assert "exists and is not empty" in err and "not made by bijcr synth" in err
     assert "views" in err and "outlier" in err
     assert not (tmp_path / "bad").exists() and not list(tmp_path.glob(".*tmp-*"))
+
+
+# ------------------------------------------------------------------ point-map error models (--map-noise)
+
+def test_fm_depth_error_has_the_documented_parts():
+    from bimanual_app.synth import MAP_NOISES, MapNoise
+    from bimanual_app.synth._emulator import map_depth_error
+
+    fm = MAP_NOISES["fm"]
+    rng = np.random.default_rng(0)
+    h, w = 60, 80
+    y, x = np.meshgrid(np.linspace(-1, 1, h), np.linspace(-1, 1, w), indexing="ij")
+    B = np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], -1).reshape(-1, 6)
+    scales, warps, rest, lag1 = [], [], [], []
+    for _ in range(200):
+        e, s = map_depth_error(fm, h, w, rng)
+        assert e.shape == (h, w)
+        scales.append(s)
+        coef, *_ = np.linalg.lstsq(B, (e - s).ravel(), rcond=None)
+        fit = (B @ coef).reshape(h, w)
+        warps.append(np.sqrt(np.mean((fit - fit.mean()) ** 2)))
+        r = (e - s) - fit
+        rest.append(r.std())
+        lag1.append(np.corrcoef(r[:, :-1].ravel(), r[:, 1:].ravel())[0, 1])
+    assert np.std(scales) == pytest.approx(0.01, rel=0.15)          # per-view depth scale, 1 % sigma
+    assert np.median(warps) == pytest.approx(0.005, rel=0.15)       # quadratic warp, RMS 0.5 %
+    assert np.median(rest) == pytest.approx(0.003, rel=0.2)         # correlated noise, 0.3 %
+    assert np.median(lag1) > 0.8                                    # neighbours correlated
+    white = MapNoise("white", 0.0, 0.0, 0.001, 0.0)
+    e, s = map_depth_error(white, h, w, rng)
+    assert s == 0.0 and e.std() == pytest.approx(0.001, rel=0.1)
+    assert abs(np.corrcoef(e[:, :-1].ravel(), e[:, 1:].ravel())[0, 1]) < 0.1
+
+
+def test_fm_map_noise_scales_each_views_depth_along_its_reported_pose(synth_none, tmp_path):
+    """Same seed with --map-noise fm: the same poses; every map point stays on its cell's ray of the reported
+    camera, its depth off by the view's recorded depth scale error plus a smooth per-pixel part."""
+    fm_path = make_synthetic_scene(tmp_path / "fm", seed=11, views=3, objects=3, noise="none", render=True,
+                                   progress=False, preview=False, map_noise="fm")
+    a, b = load_scene(synth_none), load_scene(fm_path)
+    ra, rb = a.reconstruction, b.reconstruction
+    assert np.array_equal(ra.T_w_c, rb.T_w_c) and np.array_equal(ra.conf, rb.conf)
+    meta = yaml.safe_load((fm_path / "ground_truth.yaml").read_text())
+    assert meta["synthetic"]["map_noise"] == "fm" and meta["noise"]["map_noise"]["depth_scale_rel_sigma"] == 0.01
+    assert "map_errors" not in yaml.safe_load((synth_none / "ground_truth.yaml").read_text())
+    s_err = np.concatenate([meta["map_errors"][arm]["depth_scale_rel"] for arm in ("primary", "secondary")])
+    med, rms = [], []
+    for k in range(len(ra)):
+        T_c_w = inv_T(ra.T_w_c[k])
+        pa = apply_T(T_c_w, ra.pts3d[k].reshape(-1, 3).astype(np.float64))
+        pb = apply_T(T_c_w, rb.pts3d[k].reshape(-1, 3).astype(np.float64))
+        ok = ra.conf[k].ravel() >= 5
+        da, db = pa[ok] / np.linalg.norm(pa[ok], axis=1, keepdims=True), pb[ok] / np.linalg.norm(pb[ok], axis=1, keepdims=True)
+        assert np.max(np.linalg.norm(da - db, axis=1)) < 1e-4  # same rays: the depth alone changed
+        e = pb[ok, 2] / pa[ok, 2] - 1.0
+        med.append(np.median(e))
+        rms.append(np.sqrt(np.mean((e - s_err[k]) ** 2)))
+    assert np.std(s_err) > 0.002
+    assert np.corrcoef(med, s_err)[0, 1] > 0.8
+    assert np.median(np.abs(np.array(med) - s_err)) < 0.005
+    assert 0.001 < np.median(rms) < 0.015  # the warp and correlated noise: about 0.6 % RMS
+
+
+def test_unknown_map_noise_is_refused(tmp_path):
+    with pytest.raises(InputError) as e:
+        make_synthetic_scene(tmp_path / "x", seed=0, views=3, objects=1, render=False, map_noise="dust3r")
+    assert "map_noise" in str(e.value) and "fm" in str(e.value)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-ORDER = ["calibration", "reconstruction", "segmentation", "motion", "grasping", "tasks"]
+ORDER = ["calibration", "reconstruction", "real", "segmentation", "motion", "grasping", "tasks"]
 
 
 def main(root: Path = Path(__file__).resolve().parents[1]) -> Path:

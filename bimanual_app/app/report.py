@@ -122,12 +122,20 @@ def _calibration_section(d: Path, scene=None) -> str:
     out.append(_embed(d / "calibration.png", "Both arms' end effectors and calibrated cameras in b1, and the metric cloud"))
     pm = (cal.get("info") or {}).get("point_maps") if isinstance(cal.get("info"), dict) else None
     if isinstance(pm, dict):
+        what = "Joint estimate (kinematic loop + point maps)" if pm.get("estimator") else "Point-map refinement"
         if pm.get("accepted"):
-            out.append(f"<p>Point-map refinement applied: overlapping views {_fmt(pm.get('median_before_mm', float('nan')), ' mm', 2)}"
+            out.append(f"<p>{what} applied: overlapping views {_fmt(pm.get('median_before_mm', float('nan')), ' mm', 2)}"
                        f" &rarr; {_fmt(pm.get('median_after_mm', float('nan')), ' mm', 2)} apart (median); the cloud is placed"
                        " by the kinematics.</p>")
         else:
-            out.append(f"<p>Point-map refinement not applied: {html.escape(str(pm.get('reason', '')))}.</p>")
+            out.append(f"<p>{what} not applied, the pose-only values are kept: {html.escape(str(pm.get('reason', '')))}.</p>")
+        nz, ho = pm.get("noise") or {}, pm.get("held_out_cost") or {}
+        if nz and ho:
+            out.append(f"<p>Noise from the data: kinematic loop {_fmt(nz.get('loop_rotation_deg', float('nan')), ' deg', 2)} / "
+                       f"{_fmt(nz.get('loop_position_mm', float('nan')), ' mm', 1)} per view, point maps "
+                       f"{_fmt(nz.get('map_mm_median', float('nan')), ' mm', 2)}; held-out cost (views left out in turn) "
+                       f"{_fmt(ho.get('joint', float('nan')), '', 0)} for the joint estimate against "
+                       f"{_fmt(ho.get('pose_only', float('nan')), '', 0)} for the pose-only solve.</p>")
         if (d / "point_maps.png").exists():
             out.append(_embed(d / "point_maps.png", "Distances between overlapping views before and after the point-map refinement"))
     return "\n".join(out)

@@ -14,6 +14,7 @@ import numpy as np
 from bimanual_app.io_utils import InputError, Problem
 from bimanual_app.scene import ARM_INDEX, Reconstruction, Scene, validate_scene
 
+from ._agreement import motion_agreement
 from ._colmap import ColmapOptions, run_colmap
 from ._dense import DenseOptions
 from ._images import arm_intrinsics, check_images, read_rgb
@@ -92,6 +93,38 @@ def _kinematic_check(scene: Scene, tol_deg: float):
     return check
 
 
+def _agreement(scene: Scene):
+    """``agree(names, T_w_c) -> motion_agreement``: how well the views' camera motions match their arm's."""
+    rows = {f"{arm.name}/{k}": (arm.name, arm.T_b_e[i]) for arm in scene.arms for i, k in enumerate(arm.images)}
+
+    def agree(names: list[str], T_w_c: np.ndarray) -> dict:
+        per = {}
+        for arm in scene.arms:
+            idx = [i for i, n in enumerate(names) if rows[n][0] == arm.name]
+            per[arm.name] = (np.array([rows[names[i]][1] for i in idx]).reshape(-1, 4, 4), T_w_c[idx])
+        return motion_agreement(per)
+
+    return agree
+
+
+def agreement_extras(attempts: list[dict], chosen: str) -> dict:
+    """reconstruction.npz extension keys recording every attempt's kinematic agreement (docs/scene-format.md).
+
+    Args:
+        attempts: per attempt ``{"name", "registered": {arm: n}, "points", "agreement": motion_agreement or None}``.
+    """
+    agr = np.full((len(attempts), 3), np.nan)
+    for k, a in enumerate(attempts):
+        if a.get("agreement"):
+            agr[k] = [a["agreement"]["rot_deg"], a["agreement"]["trans_rel"], a["agreement"]["score"]]
+    names = [a["name"] for a in attempts]
+    return {"attempts": np.array(names, dtype=str), "attempt_agreement": agr,
+            "attempt_views": np.array([[a["registered"].get(arm, 0) for arm in ("primary", "secondary")]
+                                       for a in attempts], dtype=np.int64).reshape(-1, 2),
+            "attempt_points": np.array([a["points"] for a in attempts], dtype=np.int64),
+            "attempt_chosen": np.array(names.index(chosen) if chosen in names else -1, dtype=np.int64)}
+
+
 def _colmap(scene: Scene, map_width: int, dense: bool, copts: ColmapOptions, dopts: DenseOptions,
             workdir: Path | None, log: Log, check: bool = True) -> tuple[Reconstruction, dict]:
     arms = check_images(scene)
@@ -102,7 +135,7 @@ def _colmap(scene: Scene, map_width: int, dense: bool, copts: ColmapOptions, dop
             + (f"intrinsics from scene.yaml (fx {k.fx:.1f}, fixed)" if k else "intrinsics estimated by COLMAP"))
     try:
         model = run_colmap(scene.path, arms, intr, copts, workdir=workdir, log=log,
-                           check=_kinematic_check(scene, copts.max_motion_error_deg))
+                           check=_kinematic_check(scene, copts.max_motion_error_deg), agree=_agreement(scene))
     except RuntimeError as e:
         names = [n for ai in arms.values() for n in ai.names]
         raise InputError(Problem(", ".join(names[:6]) + (" ..." if len(names) > 6 else ""), "",
@@ -126,7 +159,8 @@ def _colmap(scene: Scene, map_width: int, dense: bool, copts: ColmapOptions, dop
     pts3d, conf, colors, dinfo = colmap_point_maps(model, images, map_size, dense=dense, opts=dopts, log=log)
     rec.pts3d, rec.conf, rec.colors = pts3d[order], conf[order], colors[order]
     rec.extras = {"K": model.K[order], "image_size": np.array([images[model.names[i]].shape[1::-1] for i in order], dtype=np.int64),
-                  "sparse_xyz": model.xyz.astype(np.float32), "sparse_rgb": model.rgb.astype(np.uint8)}
+                  "sparse_xyz": model.xyz.astype(np.float32), "sparse_rgb": model.rgb.astype(np.uint8),
+                  **agreement_extras([a.__dict__ for a in model.attempts], model.chosen)}
     if model.dropped:
         log(f"  dropped {len(model.dropped)} view(s) COLMAP registered against the arm's kinematics "
             f"(camera rotations disagree with the end-effector's by > {copts.max_motion_error_deg:g} deg): "
@@ -163,6 +197,12 @@ def build_reconstruction(scene: Scene, backend: str = "colmap", input: str | Pat
                                      "then pass --input FILE"))
         log(f"  importing {input} ({backend})")
         rec, info = import_export(scene, Path(input), backend, map_width=map_width)
+        names = [f"{scene.arms[a - 1].name}/{k}" for a, k in zip(rec.arm.tolist(), rec.image.tolist())]
+        n_arm = {arm.name: int(np.sum(rec.arm == arm.index)) for arm in scene.arms}
+        att = {"name": backend, "registered": n_arm, "points": 0,
+               "agreement": _agreement(scene)(names, rec.T_w_c) if min(n_arm.values()) >= 3 else None}
+        info["agreement"] = att["agreement"]
+        rec.extras.update(agreement_extras([att], backend))
         check = _kinematic_check(scene, copts.max_motion_error_deg)
         if check is not None:  # reported, not dropped: the calibration's outlier handling decides
             names = [f"{scene.arms[a - 1].name}/{k}" for a, k in zip(rec.arm.tolist(), rec.image.tolist())]

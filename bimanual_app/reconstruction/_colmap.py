@@ -11,9 +11,12 @@ missing or the model is thin (fewer than ``points_per_view`` points per view), f
 denser (lower peak threshold, affine shape, domain-size pooling) with a looser matcher, and the same
 ladder again; if views are still missing, those features re-matched with other RANSAC seeds (with
 a few dozen inliers per pair, geometric verification is a lottery). Each attempt may make several
-models (COLMAP's ``multiple_models``); the best one is the one with the most views registered while
-both arms have at least ``min_views`` (then the most points), counting only the views that pass the
-caller's check (the arms' kinematics: see ``_kinematic``); views that fail it are left out.
+models (COLMAP's ``multiple_models``); each attempt's best one is the one with the most views registered
+while both arms have at least ``min_views`` (then the most points), counting only the views that pass
+the caller's check (the arms' kinematics: see ``_kinematic``); views that fail it are left out. Between
+attempts, the usable models that register the most views are compared by the caller's ``agree``, how well
+their camera motions match the robot's (``_agreement``): the best-agreeing one is kept, near-ties going to
+more points.
 All random seeds are fixed and feature extraction and mapping run on one thread (with several, runs
 differed), so a run is repeatable; matching uses ``num_threads``.
 
@@ -35,6 +38,7 @@ import numpy as np
 from bimanual_app.scene import CameraIntrinsics
 from bimanual_app.transforms import check_T, inv_T
 
+from ._agreement import choose_attempt
 from ._images import ArmImages
 
 __all__ = ["ColmapOptions", "Attempt", "SparseModel", "run_colmap"]
@@ -67,6 +71,7 @@ class Attempt:
     models: int
     points: int
     seconds: float
+    agreement: dict | None = None   # motion_agreement of the model's kept views (None: not usable / not scored)
 
 
 @dataclass
@@ -185,6 +190,7 @@ def _match(db: Path, match: dict, geom: dict, opts: ColmapOptions, seed: int) ->
 
 
 Check = Callable[[list[str], np.ndarray], np.ndarray]
+Agree = Callable[[list[str], np.ndarray], dict]
 
 
 def _poses(rec) -> tuple[list[int], list[str], np.ndarray]:
@@ -279,7 +285,7 @@ def _to_sparse(rec, check: Check | None) -> SparseModel:
 
 def run_colmap(root: Path, arms: dict[str, ArmImages], intrinsics: dict[str, CameraIntrinsics | None],
                opts: ColmapOptions | None = None, workdir: Path | None = None, log: Log = print,
-               check: Check | None = None) -> SparseModel:
+               check: Check | None = None, agree: Agree | None = None) -> SparseModel:
     """Run COLMAP on the scene's images and return its best model.
 
     Args:
@@ -291,6 +297,10 @@ def run_colmap(root: Path, arms: dict[str, ArmImages], intrinsics: dict[str, Cam
         check: ``check(names, T_w_c) -> (M,) bool`` flags registered views to distrust (the kinematic
             consistency test of ``_kinematic``); they count as unregistered when models are compared
             and are left out of the result.
+        agree: ``agree(names, T_w_c) -> {"score", ...}`` scores a usable model's kept views by how well
+            their camera motions match the robot's (lower is better; ``_agreement.motion_agreement``);
+            the attempt to keep is chosen by it (``_agreement.choose_attempt``). None: most views, then
+            most points.
 
     Raises RuntimeError when no model at all could be built (the caller turns it into an input error
     naming the images).
@@ -303,7 +313,8 @@ def run_colmap(root: Path, arms: dict[str, ArmImages], intrinsics: dict[str, Cam
     fixed = all(intrinsics.get(a) is not None for a in arms)
     pycolmap.set_random_seed(opts.seed)
     attempts: list[Attempt] = []
-    best, best_score, best_name = None, None, ""
+    candidates: list[tuple[int, tuple, object]] = []  # (attempt index, _score, pycolmap.Reconstruction)
+    best_score = None
     with contextlib.ExitStack() as stack:
         if workdir is None:
             workdir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="bijcr-colmap-")))
@@ -349,17 +360,37 @@ def run_colmap(root: Path, arms: dict[str, ArmImages], intrinsics: dict[str, Cam
                     if top is None or sc > top[0]:
                         top = (sc, rec)
                 counts = _per_arm(top[1], arm_of, _kept(top[1], check)[0]) if top else {a: 0 for a in sorted(arms)}
-                attempts.append(Attempt(name, counts, len(models), top[1].num_points3D() if top else 0,
-                                        time.perf_counter() - t0))
+                att = Attempt(name, counts, len(models), top[1].num_points3D() if top else 0,
+                              time.perf_counter() - t0)
+                if top is not None and top[0][0] and agree is not None:
+                    att.agreement = _agreement_of(top[1], check, agree)
+                attempts.append(att)
                 log(f"  [{name}] {len(models)} model(s); best registers "
                     + ", ".join(f"{a} {counts[a]}/{len(arms[a].names)}" for a in arms)
+                    + (f"; motions vs robot {att.agreement['rot_deg']:.2f} deg, "
+                       f"{100 * att.agreement['trans_rel']:.1f} % (score {att.agreement['score']:.3f})"
+                       if att.agreement else "")
                     + f" ({time.perf_counter() - t0:.1f} s)")
+                if top is not None:
+                    candidates.append((len(attempts) - 1, top[0], top[1]))
                 if top is not None and (best_score is None or top[0] > best_score):
-                    best, best_score, best_name = top[1], top[0], name
+                    best_score = top[0]
                 if top is not None and top[0][1] == n_images:  # this database registers all: stop relaxing
                     break
-        if best is None:
+        if not candidates:
             raise RuntimeError("COLMAP could not build any model (no image pair with enough verified matches)")
-        model = _to_sparse(best, check)
+        scores = [attempts[a].agreement["score"] if attempts[a].agreement else float("inf") for a, _, _ in candidates]
+        pick = choose_attempt([sc[0] for _, sc, _ in candidates], [sc[1] for _, sc, _ in candidates],
+                              [sc[2] for _, sc, _ in candidates], scores)
+        best_name = attempts[candidates[pick][0]].name
+        model = _to_sparse(candidates[pick][2], check)
     model.attempts, model.chosen = attempts, best_name
     return model
+
+
+def _agreement_of(rec, check: Check | None, agree: Agree) -> dict:
+    """``agree`` on the registered views of ``rec`` that pass ``check``."""
+    ids, names, T = _poses(rec)
+    bad = check(names, T) if check is not None and ids else np.zeros(len(ids), bool)
+    keep = np.flatnonzero(~np.asarray(bad, bool))
+    return agree([names[k] for k in keep], T[keep])

@@ -35,8 +35,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from bimanual_app.io_utils import check_output_dir, check_output_file
     from bimanual_app.reconstruction import ColmapOptions, reconstruct
 
+    if args.workdir:
+        check_output_dir(args.workdir, "--workdir")
+    if args.plot and not args.no_plot:
+        check_output_file(args.plot, "--plot", "give a .png path in a folder you can write to")
     copts = ColmapOptions(max_features=args.max_features, num_threads=args.threads, retries=not args.no_retries,
                           min_views=args.min_views, verbose=args.verbose)
     plot = False if args.no_plot else (Path(args.plot) if args.plot else True)
@@ -51,7 +56,12 @@ def run(args: argparse.Namespace) -> int:
     if "attempts" in info:
         for a in info["attempts"]:
             regs = ", ".join(f"{k} {v}" for k, v in a["registered"].items())
-            print(f"  colmap attempt {a['name']}: {regs} ({a['models']} model(s), {a['points']} points, {a['seconds']:.1f} s)")
+            g = a.get("agreement")
+            agr = (f"; motions vs robot {g['rot_deg']:.2f} deg / {100 * g['trans_rel']:.1f} % (score {g['score']:.3f})"
+                   if g else "; not scored (too few views)")
+            mark = "  <- kept" if a["name"] == info["chosen"] else ""
+            print(f"  colmap attempt {a['name']}: {regs} ({a['models']} model(s), {a['points']} points, {a['seconds']:.1f} s)"
+                  f"{agr}{mark}")
         if info.get("dropped"):
             print(f"  dropped as kinematically inconsistent (wrongly registered): {', '.join(info['dropped'])}")
         print(f"  kept: {info['chosen']}; {info['points']} sparse points; densification: {info['dense']}"
@@ -60,6 +70,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"  point maps {info['map_size'][0]}x{info['map_size'][1]}, {100 * info['valid_cells']:.0f}% of cells seen by the model")
     else:
         print("  poses only (no point maps)")
+    if info.get("agreement"):
+        g = info["agreement"]
+        print(f"  camera motions vs robot: {g['rot_deg']:.2f} deg / {100 * g['trans_rel']:.1f} % of the motion "
+              "(median AX=XB residual after the closed-form hand-eye fit)")
     if info.get("inconsistent"):
         print(f"  warning: camera rotations contradict the arm's motions for {', '.join(info['inconsistent'])} "
               "(the calibration may drop them)")

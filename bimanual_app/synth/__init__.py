@@ -5,13 +5,14 @@ Public API:
                          touching=0.5, ...) -> Path
     ground_truth_cloud(scene_path, ...) -> (points_b1 (N, 3) float64, colors (N, 3) uint8, labels (N,) int32)
     NOISE_LEVELS: the emulator's noise levels (name -> NoiseLevel(rot_deg, trans_m, depth_rel)).
+    MAP_NOISES: point-map error models (``make_synthetic_scene(map_noise="fm")``; name -> MapNoise).
     mesh_hull(kind, size) -> (K, 3): a catalogue mesh's convex hull at a ground-truth size (its collision shape).
 See docs/synth.md.
 """
 
-from ._emulator import NOISE_LEVELS, NoiseLevel
+from ._emulator import MAP_NOISES, NOISE_LEVELS, MapNoise, NoiseLevel
 from ._generate import make_synthetic_scene
 from ._gtcloud import ground_truth_cloud
 from ._objects import mesh_hull
 
-__all__ = ["make_synthetic_scene", "ground_truth_cloud", "mesh_hull", "NOISE_LEVELS", "NoiseLevel"]
+__all__ = ["make_synthetic_scene", "ground_truth_cloud", "mesh_hull", "NOISE_LEVELS", "NoiseLevel", "MAP_NOISES", "MapNoise"]

@@ -23,6 +23,12 @@ from a 4 x 3 grid of N(0, 1)): a sigma of about ``s`` with spatially correlated 
 
 Outliers: the chosen views get a rotation error of 10-40 degrees (uniform, random axis) and a centre
 error of 10-30 cm (uniform, random direction) instead.
+
+Point-map error models (``MAP_NOISES``; the level's own depth noise above is the default): ``fm`` is what a
+foundation model gets wrong, a relative depth error per view made of a depth scale error (1 % sigma, one
+number per view: the model's scale of that view differs from the others'), a smooth quadratic warp over
+the image (RMS 0.5 %) and spatially correlated per-pixel noise (0.3 %, Gaussian correlation of 2 map
+cells). Each view's map is still built with its reported pose, so map and pose err together.
 """
 
 from __future__ import annotations
@@ -31,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bimanual_app.transforms import check_T, make_T, so3_exp
+from bimanual_app.transforms import check_T, check_shape, make_T, so3_exp
 
 BACKGROUND_DEPTH = 8.0  # metres: where rays that hit nothing are put (with the lowest confidence)
 CONF_MIN, CONF_MAX = 1.0, 10.0
@@ -53,6 +59,27 @@ NOISE_LEVELS = {
     "paper": NoiseLevel("paper", 1.5, 0.010, 0.005),
     "harsh": NoiseLevel("harsh", 3.0, 0.025, 0.015),
 }
+
+
+@dataclass(frozen=True)
+class MapNoise:
+    """A point-map (depth) error model: relative depth error ``e(u, v)`` of each view, ``z' = z (1 + e)``.
+
+    ``e = scale_rel n_v + warp_rel q_v(u, v) + corr_rel c_v(u, v)``: ``n_v`` one N(0, 1) number per view
+    (a depth scale error), ``q_v`` a quadratic polynomial in the normalised image coordinates with N(0, 1)
+    coefficients, normalised to zero mean and unit RMS over the map, ``c_v`` white N(0, 1) noise smoothed
+    by a Gaussian of ``corr_cells`` map cells and renormalised to unit standard deviation (white when 0).
+    """
+
+    name: str
+    scale_rel: float
+    warp_rel: float
+    corr_rel: float
+    corr_cells: float = 2.0
+
+
+MAP_NOISES = {"fm": MapNoise("fm", 0.01, 0.005, 0.003, 2.0)}
+
 OUTLIER_ROT_DEG = (10.0, 40.0)
 OUTLIER_TRANS_M = (0.10, 0.30)
 
@@ -115,9 +142,26 @@ def _smooth_field(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
     return cv2.resize(grid, (w, h), interpolation=cv2.INTER_CUBIC).astype(np.float64)
 
 
+def map_depth_error(model: MapNoise, h: int, w: int, rng: np.random.Generator) -> tuple[np.ndarray, float]:
+    """One view's relative depth error (h, w) under ``model`` and its depth scale error (the per-view part)."""
+    import cv2
+
+    scale_err = float(model.scale_rel * rng.normal())
+    y, x = np.meshgrid(np.linspace(-1.0, 1.0, h), np.linspace(-1.0, 1.0, w), indexing="ij")
+    basis = np.stack([x, y, x * x, x * y, y * y])
+    q = np.tensordot(rng.normal(size=5), basis, axes=1)
+    q -= q.mean()
+    q /= max(float(np.sqrt(np.mean(q ** 2))), 1e-12)
+    c = rng.normal(size=(h, w))
+    if model.corr_cells > 0:
+        c = cv2.GaussianBlur(c, (0, 0), model.corr_cells, borderType=cv2.BORDER_REFLECT)
+        c /= max(float(c.std()), 1e-12)
+    return scale_err + model.warp_rel * q + model.corr_rel * c, scale_err
+
+
 def point_map(depth: np.ndarray, rgb: np.ndarray, K: np.ndarray, T_w_c: np.ndarray, scale: float,
-              size: tuple[int, int], depth_rel: float, rng: np.random.Generator
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              size: tuple[int, int], depth_rel: float, rng: np.random.Generator,
+              depth_error: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A model-like point map of one view at reduced resolution.
 
     Args:
@@ -128,7 +172,8 @@ def point_map(depth: np.ndarray, rgb: np.ndarray, K: np.ndarray, T_w_c: np.ndarr
         scale: metric = scale * w units.
         size: (w, h) of the point map; H and W must be multiples of h and w. Pixel (u, v) stands for the
             block of image pixels around ((u + 0.5) W / w - 0.5, (v + 0.5) H / h - 0.5).
-        depth_rel: relative depth noise sigma.
+        depth_rel: relative depth noise sigma (the noise level's own model; ignored with ``depth_error``).
+        depth_error: (h, w) relative depth error replacing the level's noise (:func:`map_depth_error`), or None.
     Returns:
         ``pts3d`` (h, w, 3) float32 in w (16 mantissa bits, see :func:`compact_float32`), ``conf``
         (h, w) float32 in [1, 10] (two decimals), ``colors`` (h, w, 3) uint8 (block means of the image).
@@ -157,7 +202,9 @@ def point_map(depth: np.ndarray, rgb: np.ndarray, K: np.ndarray, T_w_c: np.ndarr
     edge = np.maximum(d2 / inv_b, spread)
     conf = CONF_MIN + (CONF_MAX - CONF_MIN) * np.exp(-(edge / 0.02) ** 2) * np.exp(-np.maximum(z - 0.8, 0.0) / 0.7)
     conf[background] = CONF_MIN
-    if depth_rel > 0:
+    if depth_error is not None:
+        z = z * (1.0 + check_shape("depth_error", depth_error, (h, w)))
+    elif depth_rel > 0:
         z = z * (1.0 + depth_rel * (0.8 * rng.normal(size=z.shape) + 0.6 * _smooth_field(rng, h, w)))
     rays = pixel_rays(K, w, h, W / w, H / h)
     P_c = rays * z[..., None]

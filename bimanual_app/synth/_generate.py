@@ -21,7 +21,7 @@ from bimanual_app.scene import ArmCapture, CameraIntrinsics, GroundTruth, Recons
 from bimanual_app.transforms import rotation_angle_between
 
 from ._camera import look_at
-from ._emulator import NOISE_LEVELS, perturb_poses, point_map, random_frame, to_frame_w
+from ._emulator import MAP_NOISES, NOISE_LEVELS, MapNoise, map_depth_error, perturb_poses, point_map, random_frame, to_frame_w
 from ._layout import place_objects, sample_base_pose, sample_hand_eye, touching_pairs
 from ._objects import choose_kinds, sample_spec
 from ._preview import save_preview
@@ -63,7 +63,8 @@ class _Log:
             yield lambda: prog.advance(task)
 
 
-def _check_args(out: Path, views, objects, noise, outliers, touching, overwrite, pointmap_size, image_size) -> None:
+def _check_args(out: Path, views, objects, noise, outliers, touching, overwrite, pointmap_size, image_size,
+                map_noise=None) -> None:
     probs = []
 
     def bad(field, msg, fix):
@@ -75,6 +76,9 @@ def _check_args(out: Path, views, objects, noise, outliers, touching, overwrite,
         bad("objects", f"objects must be an integer in 1..10, got {objects!r}", "the table holds at most 10")
     if noise not in NOISE_LEVELS:
         bad("noise", f"unknown noise level {noise!r}", f"use one of {', '.join(NOISE_LEVELS)}")
+    if map_noise is not None and not isinstance(map_noise, MapNoise) and map_noise not in MAP_NOISES:
+        bad("map_noise", f"unknown point-map noise model {map_noise!r}",
+            f"use one of {', '.join(MAP_NOISES)}, a MapNoise, or None for the noise level's own depth noise")
     if not 0.0 <= float(outliers) <= 0.5:
         bad("outliers", f"outlier fraction must be in [0, 0.5], got {outliers!r}", "e.g. --outliers 0.2")
     if not 0.0 <= float(touching) <= 1.0:
@@ -127,7 +131,7 @@ def make_synthetic_scene(out_dir: str | os.PathLike, seed: int = 0, views: int =
                          *, image_size: tuple[int, int] = (640, 480), focal: float = 420.0,
                          pointmap_size: tuple[int, int] = (160, 120), depth_stride: int = 2,
                          as_joints: bool = False, name: str | None = None, overwrite: bool = False,
-                         progress: bool = True, preview: bool = True) -> Path:
+                         progress: bool = True, preview: bool = True, map_noise: str | MapNoise | None = None) -> Path:
     """Generate a synthetic scene folder (docs/synth.md) and return its path.
 
     Args:
@@ -148,9 +152,14 @@ def make_synthetic_scene(out_dir: str | os.PathLike, seed: int = 0, views: int =
         name: scene name (default: the folder name).
         progress: log stages and a progress bar on stderr.
         preview: write preview.png.
+        map_noise: point-map error model replacing the noise level's depth noise: ``"fm"`` (foundation-model
+            like: per-view depth scale, smooth warp, correlated noise; docs/synth.md), a
+            :class:`~bimanual_app.synth._emulator.MapNoise`, or None (default: the level's own depth noise;
+            scenes are then byte-identical to those made before this option existed).
     """
     out = Path(out_dir).expanduser().absolute()
-    _check_args(out, views, objects, noise, outliers, touching, overwrite, pointmap_size, image_size)
+    _check_args(out, views, objects, noise, outliers, touching, overwrite, pointmap_size, image_size, map_noise)
+    map_model = MAP_NOISES[map_noise] if isinstance(map_noise, str) else map_noise
     log = _Log(progress)
     out.parent.mkdir(parents=True, exist_ok=True)
     stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
@@ -160,7 +169,7 @@ def make_synthetic_scene(out_dir: str | os.PathLike, seed: int = 0, views: int =
     try:
         _generate(stage, out.name if name is None else name, int(seed), int(views), int(objects), NOISE_LEVELS[noise],
                   float(outliers), bool(render), float(touching), tuple(image_size), float(focal),
-                  tuple(pointmap_size), int(depth_stride), bool(as_joints), bool(preview), log)
+                  tuple(pointmap_size), int(depth_stride), bool(as_joints), bool(preview), log, map_model)
         if out.exists():
             old = out.parent / f".{out.name}.old-{os.getpid()}"
             os.replace(out, old)
@@ -177,7 +186,7 @@ def make_synthetic_scene(out_dir: str | os.PathLike, seed: int = 0, views: int =
 
 def _generate(root: Path, name: str, seed: int, n_views: int, n_objects: int, level, outlier_frac: float,
               render: bool, touching: float, image_size, focal: float, pm_size, depth_stride: int,
-              as_joints: bool, preview: bool, log: _Log) -> None:
+              as_joints: bool, preview: bool, log: _Log, map_model: MapNoise | None = None) -> None:
     from bimanual_app.robots import load_robot
 
     from ._world import SynthWorld
@@ -223,6 +232,7 @@ def _generate(root: Path, name: str, seed: int, n_views: int, n_objects: int, le
         keys = [f"images/{i:03d}.png" for i in range(n_views)]
 
         pts_all, conf_all, col_all, thumbs = [], [], [], []
+        depth_scale_err: list[list[float]] = [[], []]
         if render:
             static = set(world.static_ids) | set(world.object_ids)
             with log.bar("rendering", 2 * n_views) as step:
@@ -243,8 +253,12 @@ def _generate(root: Path, name: str, seed: int, n_views: int, n_objects: int, le
                         _save_png(arm_dir / keys[i], rgb)
                         _save_png(arm_dir / "masks" / f"{i:03d}.png", mask)
                         _save_png(arm_dir / "depth" / f"{i:03d}.png", gt_q.astype(np.uint16))
+                        err = None
+                        if map_model is not None:
+                            err, s_err = map_depth_error(map_model, pm_size[1], pm_size[0], rngs["depth"])
+                            depth_scale_err[a].append(s_err)
                         p3, cf, co = point_map(depth, rgb, K, T_w_c[a][i], scale, pm_size, level.depth_rel,
-                                               rngs["depth"])
+                                               rngs["depth"], depth_error=err)
                         pts_all.append(p3)
                         conf_all.append(cf)
                         col_all.append(co)
@@ -299,6 +313,13 @@ def _generate(root: Path, name: str, seed: int, n_views: int, n_objects: int, le
                        for a in range(2)},
         "table": {"T_b1_t": table.T_b1_t, "size": table.size},
     }
+    if map_model is not None:  # only then: default scenes stay byte-identical
+        extras["synthetic"]["map_noise"] = map_model.name
+        extras["noise"]["map_noise"] = {"model": map_model.name, "depth_scale_rel_sigma": map_model.scale_rel,
+                                        "warp_rel_rms": map_model.warp_rel, "correlated_rel_sigma": map_model.corr_rel,
+                                        "correlation_cells": map_model.corr_cells}
+        if render:
+            extras["map_errors"] = {ARMS[a]: {"depth_scale_rel": np.round(depth_scale_err[a], 6)} for a in range(2)}
     gt = GroundTruth(T_e_c[0], T_e_c[1], T_b1_b2, scale, objs, extras)
     M = 2 * n_views
     rec = Reconstruction(

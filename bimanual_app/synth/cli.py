@@ -27,6 +27,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--objects", type=int, default=5, help="objects on the table (default 5)")
     p.add_argument("--noise", choices=["none", "low", "paper", "harsh"], default="paper",
                    help="emulated reconstruction noise (default paper: ~1.5 deg, 1 cm per camera pose)")
+    p.add_argument("--map-noise", choices=["fm"], default=None,
+                   help="point-map errors replacing the noise level's depth noise: fm = foundation-model like "
+                        "(per-view depth scale 1 %%, smooth quadratic warp 0.5 %%, correlated noise 0.3 %%; "
+                        "default: the level's own depth noise)")
     p.add_argument("--outliers", type=float, default=0.0, metavar="F",
                    help="fraction of each arm's views with a gross pose error (default 0)")
     p.add_argument("--touching", type=float, default=0.5, metavar="F",
@@ -41,11 +45,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bimanual_app.io_utils import check_output_dir
     from bimanual_app.synth import make_synthetic_scene
 
+    check_output_dir(args.out, "OUT", "give a new or empty folder you can write to")
     path = make_synthetic_scene(args.out, seed=args.seed, views=args.views, objects=args.objects, noise=args.noise,
                                 outliers=args.outliers, render=not args.no_render, touching=args.touching,
                                 pointmap_size=args.pointmap_size, as_joints=args.joints, overwrite=args.overwrite,
+                                map_noise=args.map_noise,
                                 progress=not args.quiet)
     print(path)
     return 0

@@ -1,6 +1,7 @@
 """Measure how much each emulator noise level perturbs a synthetic capture (the table in docs/synth.md).
 
-Run: ``.venv/bin/python -m bimanual_app.synth.measure [--seed N] [--views N] [--seeds K]``.
+Run: ``.venv/bin/python -m bimanual_app.synth.measure [--seed N] [--views N] [--seeds K] [--levels L ...]``;
+a level ``paper+fm`` is the noise level ``paper`` with ``map_noise="fm"`` point maps.
 Prints a markdown table: camera-pose errors (reported vs true, in b1 and metres), the distance of the
 point maps (mapped to b1 with the true frame and scale) to the true cloud, and the depth error along each
 point's ray in its reported camera (the depth noise alone).
@@ -75,16 +76,18 @@ def measure_scene(path: Path) -> dict:
 
 
 def measure(levels=("none", "low", "paper", "harsh"), seeds=(7,), views: int = 8, objects: int = 5) -> dict:
-    """{level: merged errors over ``seeds``} for rendered scenes made in a temporary folder."""
+    """{level: merged errors over ``seeds``} for rendered scenes made in a temporary folder (``LEVEL+MAP``:
+    the noise level with that point-map noise model, e.g. ``paper+fm``)."""
     from ._generate import make_synthetic_scene
 
     res = {}
     with tempfile.TemporaryDirectory(prefix="bijcr-measure-") as tmp:
         for lvl in levels:
+            noise, _, map_noise = lvl.partition("+")
             parts = []
             for s in seeds:
-                p = make_synthetic_scene(Path(tmp) / f"{lvl}-{s}", seed=s, views=views, objects=objects, noise=lvl,
-                                         progress=False, preview=False)
+                p = make_synthetic_scene(Path(tmp) / f"{lvl}-{s}", seed=s, views=views, objects=objects, noise=noise,
+                                         progress=False, preview=False, map_noise=map_noise or None)
                 parts.append(measure_scene(p))
             res[lvl] = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
             print(f"measured {lvl}", file=sys.stderr, flush=True)
@@ -111,8 +114,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=7, help="first seed (default 7)")
     ap.add_argument("--seeds", type=int, default=2, help="number of seeds (default 2)")
     ap.add_argument("--views", type=int, default=8)
+    ap.add_argument("--levels", nargs="+", default=["none", "low", "paper", "harsh"],
+                    help="noise levels, LEVEL or LEVEL+MAP (e.g. paper+fm; default: the four levels)")
     args = ap.parse_args(argv)
-    res = measure(seeds=tuple(range(args.seed, args.seed + args.seeds)), views=args.views)
+    res = measure(levels=tuple(args.levels), seeds=tuple(range(args.seed, args.seed + args.seeds)), views=args.views)
     n = sum(len(r["rot_deg"]) for r in res.values()) // len(res)
     print(f"Over {n} camera poses per level (seeds {args.seed}..{args.seed + args.seeds - 1}, {args.views} views per arm,"
           " 5 objects); point-map errors over confident (conf >= 5) points that see the table or objects.\n")
