@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 DEMO_OUT ?= out/demo
 
-.PHONY: setup demo test bench clean-venv
+.PHONY: setup demo test lint bench clean-venv
 
 setup:
 	@bash tools/setup_env.sh
@@ -14,7 +14,11 @@ demo: setup
 
 test: setup
 	@bash tools/setup_test_deps.sh
+	$(VENV)/bin/ruff check .
 	$(PY) -m pytest -q -p no:cacheprovider -p no:dash
+
+lint: setup
+	$(VENV)/bin/ruff check .
 
 # Every bench runs and prints all its rows (FAIL rows included; a bench exits 0 once it ran), and the
 # tables are always assembled; a bench that crashed is reported, and fails `make bench` at the end.

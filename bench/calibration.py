@@ -578,7 +578,7 @@ def point_map_lines(seeds: list[int], pm_rows: list[dict]) -> list[str]:
                      f"{r['cpu']:.2f} |")
     for name in ("joint solve", "refined"):
         rs = [row[name] for row in pm_rows]
-        m = lambda f: float(np.mean([np.mean(r[f]) for r in rs]))  # noqa: E731
+        m = lambda f, rs=rs: float(np.mean([np.mean(r[f]) for r in rs]))  # noqa: E731
         L.append(f"| **mean** | **{name}** | {m('rot'):.3f} | {m('mm'):.2f} | {m('scale'):.3f} | {m('b2b_deg'):.3f} / "
                  f"{m('b2b_mm'):.2f} | {m('cloud_med'):.2f} / {m('cloud_p90'):.2f} | | {m('cpu'):.2f} |")
     L += ["", "Refined outputs, error / reported 1-sigma (the refinement's inflated covariance): RMS over the scenes "

@@ -154,7 +154,7 @@ def park_martin_baseline(scene, rec) -> dict:
         T_w_c = rec.T_w_c[rec_rows]
         T_c_w = inv_T(T_w_c)
 
-        def hand_eye(tscale: float) -> np.ndarray:
+        def hand_eye(tscale: float, T_b_e=T_b_e, T_c_w=T_c_w) -> np.ndarray:
             R, t = cv2.calibrateHandEye(list(T_b_e[:, :3, :3]), list(T_b_e[:, :3, 3]), list(T_c_w[:, :3, :3]),
                                         list(T_c_w[:, :3, 3] * tscale), method=cv2.CALIB_HAND_EYE_PARK)
             return make_T(R, np.asarray(t).ravel())
@@ -269,7 +269,7 @@ def _cell_calib(r: dict | None, key: str) -> str:
 
 
 def report(rows: list[dict], views_list: list[int], seeds: int, elapsed: float, cmd: str) -> tuple[str, bool]:
-    lines = [f"# Reconstruction benchmark", "", f"Command: `{cmd}`", "",
+    lines = ["# Reconstruction benchmark", "", f"Command: `{cmd}`", "",
              f"Rendered `bijcr synth` scenes (640x480, 5 objects, noise 'paper' for the emulator), {seeds} seed(s) per "
              f"view count; COLMAP on the CPU with {rows[0].get('threads', 2)} threads. Total {elapsed:.0f} s.", ""]
     lines += ["## COLMAP reconstruction", "",

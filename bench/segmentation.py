@@ -282,7 +282,7 @@ def fmt_dim(d):
 
 
 def report(args, rows: dict, times: list[dict], t_cli: float | None, n_scenes: int) -> str:
-    lines = [f"# Segmentation benchmark", "",
+    lines = ["# Segmentation benchmark", "",
              f"Command: `nice .venv/bin/python bench/segmentation.py{' --quick' if args.quick else ''}`", "",
              f"{n_scenes} `bijcr synth` scenes (seeds 0-{n_scenes - 1}; 6 objects, half placed touching a "
              "neighbour; 8 views per arm). Objects with fewer than "
@@ -300,8 +300,7 @@ def report(args, rows: dict, times: list[dict], t_cli: float | None, n_scenes: i
                      f"{fmt_dim(r['dim_mesh'])} | {r['time']:.2f} s |")
     main = rows[("ground truth", "graph segmenter")].row()
     lines += ["", "## Targets (ground-truth clouds, no masks)", "", "| target | value | result |", "| --- | --- | --- |"]
-    for key, name, op in (("recall", "recall >= 0.95", ">="), ("precision", "precision >= 0.9", ">="),
-                          ("miou", "mean IoU >= 0.85", ">=")):
+    for key, name in (("recall", "recall >= 0.95"), ("precision", "precision >= 0.9"), ("miou", "mean IoU >= 0.85")):
         ok = main[key] >= TARGETS[key]
         lines.append(f"| {name} | {main[key]:.3f} | {'PASS' if ok else 'FAIL'} |")
     t500 = next((t for t in times if t["n"] == 500_000), None)
@@ -334,8 +333,9 @@ def main() -> int:
     args.work.mkdir(parents=True, exist_ok=True)
     paths = make_scenes(args.work, n_scenes)
 
-    import segmentation  # noqa: F401  (imports outside the timed regions)
     import open3d  # noqa: F401
+
+    import segmentation  # noqa: F401  (imports outside the timed regions)
 
     rows: dict = {}
     for path in paths:

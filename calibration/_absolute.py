@@ -47,7 +47,7 @@ class AbsoluteState:
     W: list
     scale: float
 
-    def perturbed(self, x: np.ndarray) -> "AbsoluteState":
+    def perturbed(self, x: np.ndarray) -> AbsoluteState:
         """Apply local coordinates ``x`` (12 K + 1,): per arm [dphi_X, dt_X, dphi_W, dt_W], then ds."""
         X, W = [], []
         for m in range(len(self.X)):

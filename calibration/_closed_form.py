@@ -43,7 +43,7 @@ class PairMotions:
     def __len__(self) -> int:
         return len(self.i)
 
-    def subset(self, views: np.ndarray) -> "PairMotions":
+    def subset(self, views: np.ndarray) -> PairMotions:
         """The pairs whose two views are both in ``views`` ((K,) indices)."""
         keep = np.isin(self.i, views) & np.isin(self.j, views)
         return PairMotions(*(getattr(self, k)[keep] for k in ("i", "j", "R_A", "t_A", "R_B", "t_B", "a", "b")))

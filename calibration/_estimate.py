@@ -220,7 +220,6 @@ def estimate_jointly(views: list, arms: np.ndarray, E: np.ndarray, P: np.ndarray
         pose_noise: the pose-only solve's (rotation rad, position m) noise per view.
         progress: optional callable(str), one line per round.
     """
-    V = len(views)
     if min(int(np.sum(arms == 1)), int(np.sum(arms == 2))) < 2:
         return JointFit(start, False, f"needs 2 or more point maps per arm, has {int(np.sum(arms == 1))} / "
                                       f"{int(np.sum(arms == 2))}")

@@ -423,7 +423,7 @@ def refine_with_point_maps(views: list[PointMapView], T_e1_c1: np.ndarray, T_e2_
     zero = np.zeros(19)
     current, rounds, corr, sol = initial, [], None, None
     schedule = list(radii) + [radii[-1]] * max_fine_rounds
-    for k, radius in enumerate(schedule):
+    for radius in schedule:
         T1, T2, s, Tb = current
         Tc = _camera_poses(views, T1, T2, Tb)
         corr = (_projective_correspondences(views, samples, Tc, s, Tb, radius) if projective

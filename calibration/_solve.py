@@ -16,8 +16,13 @@ from bimanual_app.io_utils import InputError, Problem
 from bimanual_app.transforms import check_shape, inv_T, make_T
 
 from . import _absolute as absm
-from ._closed_form import PairMotions, average_base_from_world, pair_motions, park_martin_rotation, \
-    solve_translations_and_scale
+from ._closed_form import (
+    PairMotions,
+    average_base_from_world,
+    pair_motions,
+    park_martin_rotation,
+    solve_translations_and_scale,
+)
 from ._degeneracy import MIN_VIEWS, Finding, analyse_capture
 from ._outliers import angle_screen, effective_threshold, worst_view
 from ._residuals import pair_residuals, view_residuals
@@ -176,11 +181,11 @@ def _check_arm(name: str, E, C, sources: dict, images: list | None) -> tuple[np.
     try:
         E = check_shape(kE, np.asarray(E, dtype=np.float64), (None, 4, 4))
     except ValueError as e:
-        raise InputError(Problem(fE, kE, str(e), "pass one 4x4 end-effector pose per view, shape (N, 4, 4)"))
+        raise InputError(Problem(fE, kE, str(e), "pass one 4x4 end-effector pose per view, shape (N, 4, 4)")) from None
     try:
         C = check_shape(kC, np.asarray(C, dtype=np.float64), (None, 4, 4))
     except ValueError as e:
-        raise InputError(Problem(fC, kC, str(e), "pass one 4x4 camera pose per view, shape (N, 4, 4)"))
+        raise InputError(Problem(fC, kC, str(e), "pass one 4x4 camera pose per view, shape (N, 4, 4)")) from None
     if len(E) != len(C):
         raise InputError(Problem(fC, kC, f"{len(C)} camera poses for {len(E)} end-effector poses of the {name} arm",
                                  "give the camera pose of the same image for every end-effector pose: match rows by image "
@@ -231,7 +236,7 @@ def _closed_form(E, C, kept, motions, opts) -> tuple[absm.AbsoluteState, dict]:
             R_X.append(park_martin_rotation(pm.a, pm.b, np.deg2rad(opts.min_pair_angle_deg))[0])
         except ValueError as e:
             raise DegenerateCaptureError(Problem("capture", f"{ARM_NAMES[m] if len(pms) == 2 else 'arm'}: rotation",
-                                                 str(e), "add views rotated 20-40 deg about different axes"))
+                                                 str(e), "add views rotated 20-40 deg about different axes")) from e
     lin = solve_translations_and_scale(pms, R_X)
     if not np.isfinite(lin.scale) or lin.scale <= 0:
         raise DegenerateCaptureError(Problem("capture", "scale", f"the scale came out as {lin.scale:.3g} (must be > 0): "

@@ -7,9 +7,9 @@ printing them, and returns what it made.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 __all__ = ["CalibrationStage", "calibrate_stage", "require_torch"]
 

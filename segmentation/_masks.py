@@ -51,7 +51,7 @@ class MaskViews:
 
     @classmethod
     def from_scene(cls, scene_path: str | Path, T_b1_w: np.ndarray, scale: float, radius: float = 0.008,
-                   stride: int = 1) -> "MaskViews":
+                   stride: int = 1) -> MaskViews:
         """Views of a scene folder that have both a point map and a mask image.
 
         ``T_b1_w`` (4, 4) and ``scale`` come from the calibration (calibration.json). ``stride`` keeps

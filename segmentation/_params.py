@@ -66,7 +66,7 @@ class SegmentParams:
     min_object_height: float = 0.012
     min_object_size: float = 0.02
 
-    def with_(self, **kw) -> "SegmentParams":
+    def with_(self, **kw) -> SegmentParams:
         """A copy with some fields changed (unknown names raise ``TypeError``)."""
         names = {f.name for f in fields(self)}
         bad = set(kw) - names

@@ -18,8 +18,8 @@ from ._patches import make_patches, patch_adjacency
 from ._summary import ObjectSummary, summarize
 from ._table import TablePlane, check_metric, fit_table, on_table_mask
 from ._tops import split_by_tops
-from ._walls import shed_neighbour_walls
 from ._voxels import knn_edges, median_spacing, normals_and_curvature, voxelize
+from ._walls import shed_neighbour_walls
 
 DEFAULT_VOXEL = 0.005
 MIN_POINTS = 200

@@ -82,7 +82,7 @@ class SimPiper:
         self._thread = threading.Thread(target=self._loop, name=f"SimPiper-{channel}", daemon=True)
 
     # ------------------------------------------------------------------ lifecycle
-    def start(self) -> "SimPiper":
+    def start(self) -> SimPiper:
         self._thread.start()
         return self
 
@@ -91,7 +91,7 @@ class SimPiper:
         self._thread.join(timeout=2.0)
         self._bus.shutdown()
 
-    def __enter__(self) -> "SimPiper":
+    def __enter__(self) -> SimPiper:
         return self.start()
 
     def __exit__(self, *exc) -> None:

@@ -68,7 +68,6 @@ def write_reach_scene(root, cloud: np.ndarray | None = None, calibration: bool =
     from pathlib import Path
 
     import open3d as o3d
-
     from _scene_fixtures import make_scene
 
     root = Path(root)

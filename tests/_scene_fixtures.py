@@ -8,7 +8,7 @@ import numpy as np
 from PIL import Image
 
 from bimanual_app.scene import ArmCapture, CameraIntrinsics, GroundTruth, Reconstruction, Scene, write_scene
-from bimanual_app.transforms import inv_T, make_T, so3_exp
+from bimanual_app.transforms import make_T, so3_exp
 
 
 def random_ee_poses(rng: np.random.Generator, n: int) -> np.ndarray:

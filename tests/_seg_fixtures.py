@@ -66,7 +66,7 @@ def _area_samples(rng, n, parts):
     out_p, out_n = [], []
     areas = np.array([a for a, _ in parts])
     counts = rng.multinomial(n, areas / areas.sum()) if n > 0 else np.zeros(len(parts), int)
-    for (a, f), k in zip(parts, counts):
+    for (_, f), k in zip(parts, counts):
         if k:
             p, nn = f(k)
             out_p.append(p)

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from _recon_fixtures import render_scene
+
 from bimanual_app.transforms import inv_T
 
 ROOT = Path(__file__).resolve().parents[1]

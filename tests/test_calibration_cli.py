@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from _calib_fixtures import make_capture, make_scene, write_capture_scene
 from scipy.spatial.transform import Rotation
 
-from _calib_fixtures import make_capture, make_scene, write_capture_scene
 from bimanual_app.cli import main
 from bimanual_app.io_utils import InputError
 from bimanual_app.scene import load_scene, write_scene

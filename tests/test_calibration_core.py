@@ -5,14 +5,19 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _calib_fixtures import make_capture
 from scipy.spatial.transform import Rotation
 
-from _calib_fixtures import make_capture
 from bimanual_app.transforms import inv_T, make_T, rotation_angle_between, so3_exp
 from calibration import CalibrationOptions, metric_cloud, solve_bijcr, solve_single_arm
 from calibration import _absolute as absm
-from calibration._closed_form import (average_base_from_world, base_from_world_per_view, pair_motions,
-                                      park_martin_rotation, solve_translations_and_scale)
+from calibration._closed_form import (
+    average_base_from_world,
+    base_from_world_per_view,
+    pair_motions,
+    park_martin_rotation,
+    solve_translations_and_scale,
+)
 from calibration._evaluate import calibration_errors, paper_residuals
 
 
@@ -245,8 +250,8 @@ def test_metric_cloud_exact_and_confidence_filtered():
 
 
 def test_robot_self_filter_drops_the_arm_columns_only():
-    from calibration._api import robot_self_mask
     from bimanual_app.transforms import make_T, so3_exp
+    from calibration._api import robot_self_mask
 
     T_b1_b2 = make_T(so3_exp(np.array([0.0, 0.0, np.pi])), [0.6, 0.0, 0.02])
     pts = np.array([[0.05, 0.0, 0.30],    # primary arm column

@@ -10,9 +10,8 @@ import numpy as np
 import pytest
 
 from bimanual_app.transforms import inv_T, make_T, rotation_angle_between, so3_exp
-from tests._synth_fixtures import synth_none  # noqa: F401  (fixture)
-
 from calibration import CalibrationOptions as _Options
+from tests._synth_fixtures import synth_none  # noqa: F401  (fixture)
 
 REFINE = _Options(estimator="refine")  # the previous point-map estimator, tested as it was
 

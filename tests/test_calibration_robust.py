@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from _calib_fixtures import make_capture
+
 from bimanual_app.io_utils import InputError
 from bimanual_app.transforms import inv_T, make_T, rotation_angle_between, so3_exp
 from calibration import CalibrationOptions, DegenerateCaptureError, solve_bijcr
@@ -51,8 +51,9 @@ def test_no_false_outliers_on_clean_data(seed):
         assert r.views_dropped == {"primary": [], "secondary": []}, (noise, r.views_dropped)
 
 
-def _single_axis_capture(cap, axis=np.array([0.0, 0.0, 1.0])):
+def _single_axis_capture(cap, axis=(0.0, 0.0, 1.0)):
     """Replace the primary arm's motion by rotations about one flange axis (plus translations)."""
+    axis = np.asarray(axis, dtype=np.float64)
     n = len(cap.T_b1_e)
     E0 = cap.T_b1_e[0]
     E = np.stack([E0 @ make_T(so3_exp(axis * 0.35 * k), [0.02 * k, 0.01 * k, 0.0]) for k in range(n)])

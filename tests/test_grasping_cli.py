@@ -4,8 +4,8 @@ import json
 
 import numpy as np
 import pytest
-
 from _grasp_fixtures import Obj, facing_T_b1_b2, make_cloud, write_inputs
+
 from bimanual_app.cli import main
 from bimanual_app.transforms import check_T, inv_T
 

@@ -1,10 +1,10 @@
 """A can seen from one side (a half shell) is completed as the whole cylinder: real centre, real width; a
 box seen from one corner is not."""
 
-import numpy as np
-
 import _grasp_fixtures as _fx
+import numpy as np
 from _grasp_fixtures import Obj, make_cloud
+
 from grasping import estimate_support, object_geometry
 
 CAN = Obj("cylinder", (0.35, 0.05), (0.075, 0.075, 0.15))

@@ -2,8 +2,8 @@
 
 import numpy as np
 import pytest
-
 from _grasp_fixtures import Obj, accept_all_arms, make_cloud, write_inputs
+
 from bimanual_app.io_utils import InputError
 from grasping import PlanParams, load_segments, plan_grasps, resolve_inputs, scene_cloud
 

@@ -4,8 +4,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
 from _grasp_fixtures import Obj, accept_all_arms, facing_T_b1_b2, make_cloud
+
 from grasping import GripperCollider, PlanParams, grippers_distance, load_gripper, plan_grasps, scene_cloud
 
 T12 = facing_T_b1_b2(0.6)

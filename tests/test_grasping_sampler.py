@@ -2,10 +2,17 @@
 
 import numpy as np
 import pytest
-
 from _grasp_fixtures import Obj, box_scene, make_cloud
-from grasping import (GripperCollider, SamplerParams, SceneOctree, estimate_support, load_gripper, object_geometry,
-                      sample_grasps)
+
+from grasping import (
+    GripperCollider,
+    SamplerParams,
+    SceneOctree,
+    estimate_support,
+    load_gripper,
+    object_geometry,
+    sample_grasps,
+)
 from grasping._collision import points_in_gripper
 
 

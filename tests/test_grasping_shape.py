@@ -2,8 +2,8 @@
 noise and when seen from one side; an open cup (rim and inside, no lid) and a blob do not."""
 
 import numpy as np
-
 from _grasp_fixtures import Obj, cylinder_points, make_cloud, table_points
+
 from grasping import estimate_support, object_geometry
 from grasping._objects import primitive_fit
 

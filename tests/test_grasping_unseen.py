@@ -1,8 +1,8 @@
 """The space around an object that no camera saw into is solid for its grasps (``unseen_space``)."""
 
 import numpy as np
-
 from _grasp_fixtures import Obj, accept_all_arms, make_cloud
+
 from grasping import PlanParams, estimate_support, plan_grasps, scene_cloud
 from grasping._objects import unseen_space
 

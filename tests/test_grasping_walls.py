@@ -3,8 +3,8 @@ under it, its side walls are completed (unseen, solid), and push contacts then f
 held above the table, with the table seen under it, is left as it is."""
 
 import numpy as np
-
 from _grasp_fixtures import Obj, make_cloud
+
 from grasping import estimate_support, object_geometry
 from grasping._objects import hides_table
 
@@ -59,6 +59,7 @@ def test_givers_that_hold_deeper_are_likelier_to_hold():
 
 def test_push_pairs_are_found_on_a_carton_seen_only_from_above():
     from _grasp_fixtures import accept_all_arms, facing_T_b1_b2
+
     from grasping import PlanParams, plan_grasps, scene_cloud
 
     T12 = facing_T_b1_b2(0.6)

@@ -9,7 +9,7 @@ from PIL import Image
 
 from bimanual_app.cli import main as cli_main
 from bimanual_app.hardware import ImageFolderCamera, load_poses, plan_capture
-from bimanual_app.hardware._camera import open_camera, OpenCVCamera
+from bimanual_app.hardware._camera import OpenCVCamera, open_camera
 from bimanual_app.io_utils import InputError
 from bimanual_app.scene import load_scene
 from tests._hw_fixtures import Q_READY, SimPiper, new_channel

@@ -6,9 +6,9 @@ import json
 
 import numpy as np
 import pytest
+from _motion_fixtures import write_reach_scene
 from PIL import Image
 
-from _motion_fixtures import write_reach_scene
 from bimanual_app.cli import main
 
 

@@ -6,8 +6,8 @@ import os
 
 import numpy as np
 import pytest
-
 from _motion_fixtures import BOX_CENTER, BOX_HALF, T_B1_B2, down_pose, table_cloud
+
 from bimanual_app.collision import CollisionWorld, SceneMap
 from bimanual_app.collision._capsules import segment_distance
 from bimanual_app.io_utils import InputError

@@ -6,8 +6,8 @@ import json
 
 import numpy as np
 import pytest
-
 from _motion_fixtures import BOX_CENTER, BOX_HALF, T_B1_B2, down_pose, table_cloud, tabletop_configs
+
 from bimanual_app.io_utils import write_json
 from bimanual_app.planning import BimanualSetup, JointSpace, default_ready, parametrize, plan_path, validate_samples
 from bimanual_app.robots import load_robot

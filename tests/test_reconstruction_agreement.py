@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from _recon_fixtures import render_scene
+
 from bimanual_app.reconstruction import ColmapOptions, build_reconstruction, reconstruct
 from bimanual_app.reconstruction._agreement import arm_agreement, choose_attempt, motion_agreement
 from bimanual_app.scene import load_scene

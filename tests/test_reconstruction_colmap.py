@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pycolmap
 import pytest
-
 from _recon_fixtures import ARMS, render_scene
+
 from bimanual_app.io_utils import InputError
 from bimanual_app.reconstruction import ColmapOptions, DenseOptions, build_reconstruction, reconstruct
 from bimanual_app.scene import load_scene

@@ -5,12 +5,25 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-
 from _recon_fixtures import camera_poses, make_world, ray_cast
-from bimanual_app.reconstruction._dense import (DenseOptions, _mean_of_top, choose_sources, consistency_counts, fit_plane,
-                                                plane_sweep, sweep_planes)
-from bimanual_app.reconstruction._pointmap import (box_to_model, grid_pixels, intrinsics_from_box, intrinsics_in_box,
-                                                   pixels_to_cells, sample_nearest)
+
+from bimanual_app.reconstruction._dense import (
+    DenseOptions,
+    _mean_of_top,
+    choose_sources,
+    consistency_counts,
+    fit_plane,
+    plane_sweep,
+    sweep_planes,
+)
+from bimanual_app.reconstruction._pointmap import (
+    box_to_model,
+    grid_pixels,
+    intrinsics_from_box,
+    intrinsics_in_box,
+    pixels_to_cells,
+    sample_nearest,
+)
 from bimanual_app.scene import CameraIntrinsics
 from bimanual_app.transforms import apply_T, inv_T
 

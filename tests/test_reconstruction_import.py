@@ -10,9 +10,16 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from _recon_fixtures import (
+    ARMS,
+    expected_points,
+    expected_T_w_c,
+    load_tool,
+    render_scene,
+    similarity,
+    write_model_export,
+)
 
-from _recon_fixtures import (ARMS, expected_points, expected_T_w_c, load_tool, render_scene, similarity,
-                             write_model_export)
 from bimanual_app.cli import main as bijcr
 from bimanual_app.io_utils import InputError
 from bimanual_app.reconstruction import build_reconstruction, import_export, load_export, reconstruct

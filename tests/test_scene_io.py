@@ -162,7 +162,7 @@ def test_joint_angles_in_degrees(scene_dir):
 def test_scene_yaml_rules(scene_dir):
     y = scene_dir / "scene.yaml"
     y.write_text("format: 2\nname: x\ncamera: {width: 640, height: 480, fx: -1, fy: 600, cx: 320, cy: 240}\nrobt: piper\n")
-    errs = only_error(scene_dir, "format must be 1", "camera.fx")
+    only_error(scene_dir, "format must be 1", "camera.fx")
     scene, problems = validate_scene(scene_dir)
     assert any("unknown key 'robt'" in str(p) for p in problems)
     y.write_text("format: 1\nname: [unclosed\n")

@@ -5,10 +5,10 @@ from __future__ import annotations
 import json
 
 import numpy as np
-
 from _seg_fixtures import PALETTE, make_table_scene, write_mask_scene, write_ply
-from bimanual_app.cli import main as bijcr
 from test_segmentation_objects import best_iou, box_and_cylinder, flush_boxes
+
+from bimanual_app.cli import main as bijcr
 
 
 def test_cli_writes_labels_summary_and_picture(tmp_path, capsys):

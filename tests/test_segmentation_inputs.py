@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from _seg_fixtures import make_table_scene, write_ply
+
 from bimanual_app.cli import main as bijcr
 from bimanual_app.io_utils import InputError
 from segmentation import read_cloud, segment

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from _seg_fixtures import PALETTE, make_table_scene, write_mask_scene
+from test_segmentation_objects import best_iou, flush_boxes
+
 from bimanual_app.io_utils import InputError
 from segmentation import MaskViews, segment
-from test_segmentation_objects import best_iou, flush_boxes
 
 RED = PALETTE[0]
 

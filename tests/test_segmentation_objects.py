@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from _seg_fixtures import PALETTE, Obj, make_table_scene
+
 from segmentation import SegmentParams, segment
 
 RED, GREEN, BLUE = PALETTE[0], PALETTE[1], PALETTE[2]

@@ -2,8 +2,8 @@
 object (a cup's inside bottom under its rim) and equal-height neighbours are not."""
 
 import numpy as np
-
 from _grasp_fixtures import box_points, cylinder_points
+
 from segmentation import SegmentParams
 from segmentation._tops import split_by_tops
 from segmentation._voxels import knn_edges, normals_and_curvature, voxelize

@@ -2,8 +2,8 @@
 a box's own sides, a cup and a region without a neighbour keep their voxels."""
 
 import numpy as np
-
 from _grasp_fixtures import box_points, cylinder_points
+
 from segmentation import SegmentParams
 from segmentation._voxels import knn_edges, normals_and_curvature, voxelize
 from segmentation._walls import shed_neighbour_walls

@@ -3,8 +3,7 @@
 import numpy as np
 import pytest
 
-from bimanual_app.simulation import (box_shape, fit_table, match_truth, shape_from_points, table_from_plane,
-                                     truth_shapes)
+from bimanual_app.simulation import box_shape, fit_table, match_truth, shape_from_points, table_from_plane, truth_shapes
 from bimanual_app.simulation._bodies import DEFAULT_DENSITY
 from bimanual_app.transforms import make_T, so3_exp
 from tests._task_fixtures import box_surface_points, table_points

@@ -12,7 +12,10 @@ from pathlib import Path
 ORDER = ["calibration", "reconstruction", "real", "segmentation", "motion", "grasping", "tasks"]
 
 
-def main(root: Path = Path(__file__).resolve().parents[1]) -> Path:
+DEFAULT_ROOT = Path(__file__).resolve().parents[1]
+
+
+def main(root: Path = DEFAULT_ROOT) -> Path:
     bench_dir = root / "docs" / "bench"
     parts = ["# Benchmarks", "",
              "The latest output of every benchmark in `bench/`, each under the command that produced it "

@@ -30,7 +30,10 @@ EDGES = [  # (from, to, label, known, curvature)
 ]
 
 
-def main(out: Path = Path(__file__).resolve().parents[1] / "docs" / "img" / "frames.png") -> Path:
+DEFAULT_OUT = Path(__file__).resolve().parents[1] / "docs" / "img" / "frames.png"
+
+
+def main(out: Path = DEFAULT_OUT) -> Path:
     fig, ax = plt.subplots(figsize=(9, 5.5))
     for a, b, label, known, rad in EDGES:
         (x0, y0), (x1, y1) = NODES[a], NODES[b]

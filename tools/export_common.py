@@ -119,7 +119,7 @@ def vggt_crop_box(W0: int, H0: int, mode: str = "crop", target: int = 518) -> tu
             w, h = round(W0 * (target / H0) / 14) * 14, target
     else:
         w, h = target, round(H0 * (target / W0) / 14) * 14
-    sx, sy = W0 / w, H0 / h
+    sy = H0 / h
     box = [0.0, 0.0, float(W0), float(H0)]
     if mode == "crop" and h > target:
         start = (h - target) // 2

@@ -23,7 +23,15 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from export_common import add_repo, dust3r_crop_box, image_size, scene_images, stack_padded, to_uint8_images, write_export  # noqa: E402
+from export_common import (  # noqa: E402
+    add_repo,
+    dust3r_crop_box,
+    image_size,
+    scene_images,
+    stack_padded,
+    to_uint8_images,
+    write_export,
+)
 
 
 def pack(model: str, names: list[str], orig_sizes: list[tuple[int, int]], size: int, cam2world, pts3d: list, conf: list,

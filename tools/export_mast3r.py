@@ -31,8 +31,8 @@ from export_dust3r import pack  # noqa: E402  (same layout: camera-to-world pose
 def run_model(paths: list[Path], weights: str, size: int, device: str, niter1: int, niter2: int,
               matching_conf_thr: float) -> dict:
     """MASt3R inference + sparse global alignment; returns numpy outputs (imports MASt3R here only)."""
-    import torch
     import mast3r.utils.path_to_dust3r  # noqa: F401  (puts MASt3R's dust3r submodule on the path)
+    import torch
     from dust3r.utils.image import load_images
     from mast3r.cloud_opt.sparse_ga import sparse_global_alignment
     from mast3r.image_pairs import make_pairs

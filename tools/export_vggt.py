@@ -25,7 +25,16 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from export_common import add_repo, image_size, pad_box, scene_images, stack_padded, to_uint8_images, vggt_crop_box, write_export  # noqa: E402
+from export_common import (  # noqa: E402
+    add_repo,
+    image_size,
+    pad_box,
+    scene_images,
+    stack_padded,
+    to_uint8_images,
+    vggt_crop_box,
+    write_export,
+)
 
 
 def crop_boxes(orig_sizes: list[tuple[int, int]], mode: str) -> tuple[list[list[float]], list[tuple[int, int]]]:

@@ -16,9 +16,9 @@ import json
 import sys
 import time
 import traceback
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 from bimanual_app.io_utils import InputError, write_json
 
@@ -63,7 +63,7 @@ class StageRecord:
     outputs: list[str] = field(default_factory=list)
 
 
-def _hash_path(h: "hashlib._Hash", p: Path) -> None:
+def _hash_path(h: hashlib._Hash, p: Path) -> None:
     if p.is_dir():
         for q in sorted(p.rglob("*")):
             if q.is_file() and not q.name.startswith("."):

@@ -74,7 +74,6 @@ def build_stages(scene: str, out: str, backend: str = "colmap", skip: tuple[str,
 
 def run(args: argparse.Namespace) -> int:
     import sys
-    from pathlib import Path
 
     from bimanual_app.io_utils import check_output_dir, write_json
     from bimanual_app.scene import validate_scene

@@ -6,8 +6,8 @@ DegenerateCaptureError, :class:`~bimanual_app.app.pipeline.StageFailure`) instea
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 __all__ = ["scene_has_masks", "reconstruct", "calibrate", "segment", "grasp", "task"]
 

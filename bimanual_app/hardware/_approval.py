@@ -20,9 +20,10 @@ import json
 import os
 import secrets
 import time
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from bimanual_app.io_utils import Problem, atomic_open, to_jsonable
 
@@ -90,7 +91,7 @@ class PreviewApproval:
         d.pop("signature")
         return json.dumps(to_jsonable(d), sort_keys=True, separators=(",", ":")).encode()
 
-    def sign(self, key: bytes | None = None) -> "PreviewApproval":
+    def sign(self, key: bytes | None = None) -> PreviewApproval:
         self.signature = "hmac-sha256:" + hmac.new(key or approval_key(), self.payload(), hashlib.sha256).hexdigest()
         return self
 

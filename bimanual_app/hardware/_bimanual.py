@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Any, Callable, Mapping
+from collections.abc import Callable, Mapping
+from typing import Any
 
 from bimanual_app.io_utils import Problem
 
@@ -40,7 +41,7 @@ class BimanualHardware:
                       workspace_primary: WorkspaceBox | None = DEFAULT_WORKSPACE,
                       workspace_secondary: WorkspaceBox | None = DEFAULT_WORKSPACE,
                       velocity_fraction: float = 0.5, bustype: str = "socketcan", check_port: bool = True,
-                      execute: str | None = None) -> "BimanualHardware":
+                      execute: str | None = None) -> BimanualHardware:
         """Both arms from channel names; each workspace box is in that arm's own base frame."""
         if isinstance(robot, str):
             from bimanual_app.robots import load_robot
@@ -53,7 +54,7 @@ class BimanualHardware:
             arms.append(PiperArm(can, name, limits=lim, bustype=bustype, check_port=check_port, execute=execute))
         return cls(*arms)
 
-    def connect(self, timeout_s: float = 2.0) -> "BimanualHardware":
+    def connect(self, timeout_s: float = 2.0) -> BimanualHardware:
         """Connect both (listen only); if the second fails the first is closed again."""
         done = []
         try:
@@ -70,7 +71,7 @@ class BimanualHardware:
         for a in self.arms.values():
             a.close()
 
-    def __enter__(self) -> "BimanualHardware":
+    def __enter__(self) -> BimanualHardware:
         return self.connect()
 
     def __exit__(self, *exc) -> None:

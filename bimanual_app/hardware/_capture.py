@@ -18,9 +18,9 @@ import shutil
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import yaml
@@ -146,7 +146,7 @@ def plan_capture(poses: str | Path | PoseList, out: str | Path, arm: str = "prim
     if pl.home is not None:
         lines.append(f"  then home: [{', '.join(f'{v:+.3f}' for v in pl.home)}]")
     lines.append(f"  estimated motion time between poses: {sum(durations):.1f} s (+ the move to the first pose)")
-    lines.append("  scene.yaml: " + ("will be written (robot: %s)" % pl.robot if write_yaml else "exists, kept"))
+    lines.append("  scene.yaml: " + (f"will be written (robot: {pl.robot})" if write_yaml else "exists, kept"))
     return CapturePlan(arm, pl, out, out / arm, limits, write_yaml, lines)
 
 

@@ -66,7 +66,7 @@ class HardwareError(RuntimeError):
                    " check it, then resume with PiperArm.resume())"
         return f"{where}{self.reason}{tail}"
 
-    def with_stopped(self, stopped: tuple[str, ...]) -> "HardwareError":
+    def with_stopped(self, stopped: tuple[str, ...]) -> HardwareError:
         """The same error, noting which arms were stopped."""
         self.stopped = tuple(stopped)
         self.args = (self._text(),)

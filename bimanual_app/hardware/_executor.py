@@ -25,8 +25,9 @@ from __future__ import annotations
 import collections
 import sys
 import time
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -281,7 +282,7 @@ def _run(arms: Mapping[str, Any], trajs: Mapping[str, JointTrajectory], cfg: Exe
         return report
     except HardwareError as e:
         e.report = report  # what happened up to the failure (trace, tracking)
-        raise e.with_stopped(stop_all(arms))
+        raise e.with_stopped(stop_all(arms)) from None
     except LimitViolation as e:
         stopped = stop_all(arms)
         e.problems.append(Problem("control loop", "", f"arms stopped: {', '.join(stopped) or 'none'}",

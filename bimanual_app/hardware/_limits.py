@@ -79,7 +79,7 @@ class SafetyLimits:
     @classmethod
     def from_robot(cls, robot="piper", joint_margin: float = 0.0, velocity_fraction: float = 0.5,
                    workspace: WorkspaceBox | None = DEFAULT_WORKSPACE, links: tuple[str, ...] | None = None,
-                   name: str = "arm") -> "SafetyLimits":
+                   name: str = "arm") -> SafetyLimits:
         """Limits from the robot registry.
 
         Args:

@@ -32,9 +32,10 @@ import math
 import threading
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -168,7 +169,7 @@ class PiperArm:
         if state not in ("up", "unknown"):
             raise ConnectionFailed(f"CAN interface {self.can_channel!r} is {state}; {setup}", self.name)
 
-    def connect(self, timeout_s: float = 2.0) -> "PiperArm":
+    def connect(self, timeout_s: float = 2.0) -> PiperArm:
         """Open the bus, start the SDK's reader thread and wait for the arm's joint feedback.
 
         Sends nothing. Raises :class:`ConnectionFailed` when the bus cannot be opened or no joint feedback
@@ -232,7 +233,7 @@ class PiperArm:
         """Close the bus (sends nothing: an enabled arm keeps holding its last target)."""
         self._release()
 
-    def __enter__(self) -> "PiperArm":
+    def __enter__(self) -> PiperArm:
         return self.connect()
 
     def __exit__(self, *exc) -> None:

@@ -9,9 +9,10 @@ canonical hash used by the preview approval.
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -92,7 +93,7 @@ class JointTrajectory:
         g = None if self.gripper is None else float((1.0 - a) * self.gripper[i] + a * self.gripper[i + 1])
         return q, g
 
-    def resample(self, dt: float) -> "JointTrajectory":
+    def resample(self, dt: float) -> JointTrajectory:
         """The same motion sampled every ``dt`` seconds (end point kept)."""
         n = max(2, int(np.ceil(self.duration / dt)) + 1)
         ts = np.linspace(0.0, self.duration, n) if self.duration > 0 else np.zeros(1)

@@ -44,8 +44,8 @@ def _quiet_ompl() -> None:
     except Exception:  # pragma: no cover - logging control is best effort
         pass
     try:
-        import ompl._ompl as _o
         import nanobind  # noqa: F401  (only present when the module exposes it)
+        import ompl._ompl as _o
     except Exception:
         _o = None
     for mod in (_o,):

@@ -128,7 +128,7 @@ def plane_sweep(ref: np.ndarray, K_ref: np.ndarray, T_w_ref: np.ndarray, sources
     vol = np.full((D, H, W), -1.0, np.float32)
     for kk in range(D):
         scores: list[np.ndarray] = []
-        for s, (img, K_s, T_w_s) in enumerate(sources):
+        for img, K_s, T_w_s in sources:
             T_s_r = inv_T(T_w_s) @ T_w_ref
             Hm = K_s @ (T_s_r[:3, :3] + np.outer(T_s_r[:3, 3], n_c) / c[kk]) @ Kinv
             # border -1 (outside the 0..1 intensities) marks pixels that fall outside the source image;

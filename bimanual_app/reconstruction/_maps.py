@@ -12,7 +12,7 @@ Cells with neither hold the point on the cell's ray at the view's median depth, 
 from __future__ import annotations
 
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import cv2
 import numpy as np
@@ -21,8 +21,16 @@ from bimanual_app.scene import CameraIntrinsics
 from bimanual_app.transforms import apply_T, inv_T
 
 from ._colmap import SparseModel
-from ._dense import (FILL_CONF, DenseOptions, choose_sources, consistency_counts, fill_horizontal_holes, fit_plane,
-                     plane_sweep, sweep_planes)
+from ._dense import (
+    FILL_CONF,
+    DenseOptions,
+    choose_sources,
+    consistency_counts,
+    fill_horizontal_holes,
+    fit_plane,
+    plane_sweep,
+    sweep_planes,
+)
 from ._pointmap import grid_pixels, pixels_to_cells, resize_colors, sample_nearest
 
 __all__ = ["colmap_point_maps"]

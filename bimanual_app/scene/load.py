@@ -17,7 +17,7 @@ import yaml
 from bimanual_app.io_utils import InputError, Problem
 from bimanual_app.transforms import T_from_xyz_quat
 
-from .types import ARM_INDEX, ARM_NAMES, ArmCapture, CameraIntrinsics, GroundTruth, Reconstruction, Scene
+from .types import ARM_NAMES, ArmCapture, CameraIntrinsics, GroundTruth, Reconstruction, Scene
 
 POSE_COLUMNS = ["x", "y", "z", "qx", "qy", "qz", "qw"]
 SCENE_KEYS = {"format", "name", "robot", "ee_link", "camera"}

@@ -27,7 +27,7 @@ class CameraIntrinsics:
         """The 3x3 camera matrix."""
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
-    def scaled(self, width: int, height: int) -> "CameraIntrinsics":
+    def scaled(self, width: int, height: int) -> CameraIntrinsics:
         """Intrinsics of the same camera for an image resized to ``width`` x ``height``."""
         sx, sy = width / self.width, height / self.height
         return CameraIntrinsics(width, height, self.fx * sx, self.fy * sy,

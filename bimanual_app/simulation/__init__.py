@@ -18,8 +18,17 @@ Public API:
     Recorder(width, height, fps): frames -> .save_gif(path), .keyframe(name), .save_keyframes(folder)
 """
 
-from ._bodies import (BodyShape, TablePlane, box_shape, fit_table, remove_outliers, shape_from_points,
-                      table_from_plane, trim_outer, box_from_faces)
+from ._bodies import (
+                      BodyShape,
+                      TablePlane,
+                      box_from_faces,
+                      box_shape,
+                      fit_table,
+                      remove_outliers,
+                      shape_from_points,
+                      table_from_plane,
+                      trim_outer,
+)
 from ._checks import HoldMonitor, HoldSample, HoldVerdict
 from ._record import Recorder, default_camera
 from ._scene import build_world, estimated_shapes, match_truth, read_cloud, table_from_segments, truth_shapes

@@ -7,7 +7,7 @@ from those samples: the longest stretch of time during which a condition held wi
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -82,9 +82,8 @@ class HoldMonitor:
         self.samples.clear()
 
     def _longest(self, pred, since: float = -np.inf) -> tuple[float, float | None, float | None]:
-        best, start, cur = 0.0, None, None
+        best, cur = 0.0, None
         bs = be = None
-        prev_t = None
         for s in self.samples:
             if s.t < since:
                 continue
@@ -96,7 +95,6 @@ class HoldMonitor:
                     best, bs, be = dur, cur, s.t
             else:
                 cur = None
-            prev_t = s.t
         return best, bs, be
 
     def lifted_and_held(self, arms: set[str], rise: float = 0.10, hold_s: float = 2.0, since: float = -np.inf,

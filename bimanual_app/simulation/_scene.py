@@ -3,7 +3,6 @@ and (for evaluation on synthetic scenes) the true objects from ground_truth.yaml
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import os
 import sys
-from dataclasses import dataclass, field
-from typing import Callable, Mapping
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -242,7 +242,7 @@ class PreviewWorld:
         self.table_body = -1
         self.objects: dict[str, SimObject] = {}
         self.recorder = recorder
-        self._listeners: list[Callable[["PreviewWorld"], None]] = []
+        self._listeners: list[Callable[[PreviewWorld], None]] = []
         if recorder is not None:
             recorder.attach(self)
 
@@ -337,7 +337,7 @@ class PreviewWorld:
         return out
 
     # ------------------------------------------------------------------ time
-    def add_listener(self, fn: Callable[["PreviewWorld"], None]) -> None:
+    def add_listener(self, fn: Callable[[PreviewWorld], None]) -> None:
         """Call ``fn(world)`` after every physics step (monitors, success checks)."""
         self._listeners.append(fn)
 
@@ -398,7 +398,7 @@ class PreviewWorld:
                 pass
             self.cid = -1
 
-    def __enter__(self) -> "PreviewWorld":
+    def __enter__(self) -> PreviewWorld:
         return self
 
     def __exit__(self, *exc) -> None:

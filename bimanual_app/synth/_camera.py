@@ -64,12 +64,13 @@ def pixel_rays(K: np.ndarray, width: int, height: int, scale_x: float = 1.0, sca
     return np.stack([x, y, np.ones_like(x)], axis=-1)
 
 
-def look_at(eye: np.ndarray, target: np.ndarray, up_hint: np.ndarray = np.array([0.0, 0.0, 1.0]),
+def look_at(eye: np.ndarray, target: np.ndarray, up_hint: np.ndarray | None = None,
             roll: float = 0.0) -> np.ndarray:
     """OpenCV camera pose (4, 4) at ``eye`` (3,) with z towards ``target`` (3,), then rolled about z.
 
-    With ``roll = 0`` the image's "up" (-y) points as close to ``up_hint`` as possible.
+    With ``roll = 0`` the image's "up" (-y) points as close to ``up_hint`` (default +z) as possible.
     """
+    up_hint = np.array([0.0, 0.0, 1.0]) if up_hint is None else up_hint
     eye = np.asarray(eye, dtype=np.float64)
     z = np.asarray(target, dtype=np.float64) - eye
     z /= np.linalg.norm(z)

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bimanual_app.transforms import check_T, check_shape, make_T, so3_exp
+from bimanual_app.transforms import check_shape, check_T, make_T, so3_exp
 
 BACKGROUND_DEPTH = 8.0  # metres: where rays that hit nothing are put (with the lowest confidence)
 CONF_MIN, CONF_MAX = 1.0, 10.0

@@ -21,7 +21,16 @@ from bimanual_app.scene import ArmCapture, CameraIntrinsics, GroundTruth, Recons
 from bimanual_app.transforms import rotation_angle_between
 
 from ._camera import look_at
-from ._emulator import MAP_NOISES, NOISE_LEVELS, MapNoise, map_depth_error, perturb_poses, point_map, random_frame, to_frame_w
+from ._emulator import (
+    MAP_NOISES,
+    NOISE_LEVELS,
+    MapNoise,
+    map_depth_error,
+    perturb_poses,
+    point_map,
+    random_frame,
+    to_frame_w,
+)
 from ._layout import place_objects, sample_base_pose, sample_hand_eye, touching_pairs
 from ._objects import choose_kinds, sample_spec
 from ._preview import save_preview

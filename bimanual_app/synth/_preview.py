@@ -59,7 +59,7 @@ def save_preview(path: Path, overview: np.ndarray, K_ov: np.ndarray, T_b1_ov: np
     W, H = image_size
     corners = np.array([[0, 0], [W, 0], [W, H], [0, H]], dtype=np.float64)
     d = 0.05  # frustum depth drawn (m)
-    for arm, (Ts, col) in enumerate(zip(cams, ARM_COLORS)):
+    for Ts, col in zip(cams, ARM_COLORS):
         for i, T in enumerate(Ts):
             rays = np.c_[(corners - K[:2, 2]) / [K[0, 0], K[1, 1]], np.ones(4)] * d
             pts = np.vstack([T[:3, 3], apply_T(T, rays)])

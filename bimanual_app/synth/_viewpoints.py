@@ -86,7 +86,7 @@ def plan_views(world, arm: int, n_views: int, rng: np.random.Generator, centre: 
     stats = {"candidates": 0, "reachable": 0, "collision_free": 0, "visible": 0}
     feasible: list[View] = []
     target_pool = max(24, 6 * n_views)
-    for i in range(max_candidates):
+    for _ in range(max_candidates):
         if len(feasible) >= target_pool:
             break
         stats["candidates"] += 1

@@ -95,7 +95,7 @@ class SynthWorld:
             self.set_arm(a, self.q[a])
 
     # ------------------------------------------------------------------ building
-    def __enter__(self) -> "SynthWorld":
+    def __enter__(self) -> SynthWorld:
         return self
 
     def __exit__(self, *exc) -> None:

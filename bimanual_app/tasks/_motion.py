@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bimanual_app.transforms import check_T, check_shape, inv_T, make_T
+from bimanual_app.transforms import check_shape, check_T, make_T
 
 __all__ = ["PlanFailure", "TaskMotion", "translate_along", "line_poses", "robot_points_mask", "WAYPOINT_STEP", "BASE_RADIUS"]
 

@@ -68,7 +68,7 @@ class OutputDir:
         if not self.committed:
             shutil.rmtree(self.staging, ignore_errors=True)
 
-    def __enter__(self) -> "OutputDir":
+    def __enter__(self) -> OutputDir:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:

@@ -15,8 +15,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bimanual_app.simulation import (HoldMonitor, Recorder, build_world, default_camera, estimated_shapes,
-                                     table_from_segments, truth_shapes)
+from bimanual_app.simulation import (
+    HoldMonitor,
+    Recorder,
+    build_world,
+    default_camera,
+    estimated_shapes,
+    table_from_segments,
+    truth_shapes,
+)
 
 from ._plan import TaskPlan
 

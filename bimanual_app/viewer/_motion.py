@@ -10,8 +10,8 @@ Pure functions of the phases and a gripper-pose function, so they are tested wit
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 

@@ -4,7 +4,7 @@ until a timeout or Ctrl-C."""
 from __future__ import annotations
 
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
