@@ -302,7 +302,8 @@ def test_page_renders_in_headless_chromium_and_ctrl_c_stops_it(run_dir, tmp_path
 
     from bimanual_app.viewer._draw import segment_colors
 
-    p, url, lines = _start(run_dir, "--timeout", "600")  # the timeout only guards against a hung test
+    # the grasps and cameras hidden: the gripper meshes of a grasp may cover an object from this viewpoint
+    p, url, lines = _start(run_dir, "--timeout", "600", "--hide", "grasps", "--hide", "cameras")
     try:
         out = "".join(lines)
         port = int(url.rsplit(":", 1)[1])

@@ -17,14 +17,20 @@ GRASP_COLORS = {"single": (40, 110, 230), "pair_primary": (240, 140, 20), "pair_
                 "pick": (30, 170, 70), "transfer": (120, 220, 140), "receiver": (220, 40, 40)}
 
 
-def _layer_toggles(server, roots: dict[str, str]) -> dict:
-    """One checkbox per present layer, each showing / hiding its root node."""
+#: short names of the layers (``bijcr view --hide NAME``) -> their root node
+LAYER_ROOTS = {"cloud": "/cloud", "ids": "/labels", "arms": "/arms", "cameras": "/cameras", "frames": "/frames",
+               "sigma": "/sigma", "grasps": "/grasps", "carried": "/tasks"}
+
+
+def _layer_toggles(server, roots: dict[str, str], hidden: tuple = ()) -> dict:
+    """One checkbox per present layer, each showing / hiding its root node; the layers whose root is in
+    ``hidden`` start hidden."""
     nodes, boxes = {}, {}
     for label, root in roots.items():
-        nodes[label] = server.scene.add_frame(root, show_axes=False)
+        nodes[label] = server.scene.add_frame(root, show_axes=False, visible=root not in hidden)
     with server.gui.add_folder("Layers"):
-        for label in roots:
-            box = server.gui.add_checkbox(label, initial_value=True)
+        for label, root in roots.items():
+            box = server.gui.add_checkbox(label, initial_value=root not in hidden)
             box.on_update(lambda _, lb=label, b=box: setattr(nodes[lb], "visible", b.value))
             boxes[label] = box
     return boxes
@@ -76,8 +82,9 @@ def _grasp_panel(server, layers: RunLayers, gripper) -> None:
     on_change()
 
 
-def build_scene(server, layers: RunLayers):
-    """Draw every present layer of ``layers`` in ``server``; returns the task player."""
+def build_scene(server, layers: RunLayers, hidden: tuple = ()):
+    """Draw every present layer of ``layers`` in ``server`` (``hidden``: root nodes that start hidden);
+    returns the task player."""
     from bimanual_app.planning import default_ready
     from bimanual_app.robots import load_robot
     from grasping import load_gripper
@@ -106,7 +113,7 @@ def build_scene(server, layers: RunLayers):
         roots["grasps"] = "/grasps"
     if layers.tasks:
         roots["carried object"] = "/tasks"
-    _layer_toggles(server, roots)
+    _layer_toggles(server, roots, hidden)
 
     cloud_h = draw_cloud(server, layers.cloud) if layers.cloud is not None else {}
     if layers.cameras:
@@ -143,9 +150,10 @@ def build_scene(server, layers: RunLayers):
 
 def serve(layers: RunLayers, host: str = "127.0.0.1", port: int = 8080, timeout: float | None = None,
           on_ready: Callable[[int], None] | None = None,
-          task: str | None = None, at: float = 0.0) -> int:
+          task: str | None = None, at: float = 0.0, hide: tuple = ()) -> int:
     """Serve ``layers`` until ``timeout`` seconds pass (None: until Ctrl-C), opening with ``task``'s replay
-    at ``at`` seconds when given. Returns the port served on."""
+    at ``at`` seconds when given and the layers named in ``hide`` (keys of :data:`LAYER_ROOTS`) hidden.
+    Returns the port served on."""
     import contextlib
     import sys
 
@@ -154,7 +162,7 @@ def serve(layers: RunLayers, host: str = "127.0.0.1", port: int = 8080, timeout:
     with contextlib.redirect_stdout(sys.stderr):  # viser's own banner: keep stdout for the URL lines
         server = viser.ViserServer(host=host, port=port, label="Bi-JCR viewer", verbose=False)
     try:
-        player = build_scene(server, layers)
+        player = build_scene(server, layers, tuple(LAYER_ROOTS[h] for h in hide))
         if task is not None:
             player.choice.value = task
             player.slider.value = min(max(at, 0.0), player.slider.max)

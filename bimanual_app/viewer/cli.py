@@ -27,6 +27,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--timeout", type=float, default=None, metavar="S", help="stop serving after S seconds")
     p.add_argument("--task", default=None, help="open with this task's replay chosen (a folder name under tasks/)")
     p.add_argument("--at", type=float, default=0.0, metavar="T", help="with --task: open at T seconds into the plan")
+    p.add_argument("--hide", action="append", default=[], metavar="LAYER",
+                   choices=("cloud", "ids", "arms", "cameras", "frames", "sigma", "grasps", "carried"),
+                   help="start with this layer hidden (repeatable; each has a checkbox on the page)")
 
 
 def _require_viser() -> None:
@@ -71,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
               f"http://127.0.0.1:{port}", flush=True)
         print("  Ctrl-C stops" + (f"; stops by itself after {args.timeout:g} s" if args.timeout else ""), flush=True)
 
-    serve(layers, host=args.host, port=args.port, timeout=args.timeout, on_ready=ready, task=args.task, at=args.at)
+    serve(layers, host=args.host, port=args.port, timeout=args.timeout, on_ready=ready, task=args.task, at=args.at,
+          hide=tuple(args.hide))
     print("bijcr view: stopped", flush=True)
     return 0
