@@ -449,13 +449,21 @@ class Row:
 
 
 def run(args) -> int:
+    from bimanual_app.robots import load_robot
     from bimanual_app.scene import load_scene
     from bimanual_app.synth import ground_truth_cloud
-    from grasping import (GripperCollider, SamplerParams, SceneOctree, load_gripper, make_arms, plan_grasps,
-                          plan_to_dict, scene_cloud)
+    from grasping import (
+        GripperCollider,
+        SamplerParams,
+        SceneOctree,
+        load_gripper,
+        make_arms,
+        plan_grasps,
+        plan_to_dict,
+        scene_cloud,
+    )
     from grasping._objects import estimate_support
     from grasping._plan import PlanParams
-    from bimanual_app.robots import load_robot
 
     seeds = list(range(args.seeds))
     robot = load_robot("piper")

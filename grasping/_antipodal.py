@@ -123,29 +123,29 @@ class GraspSet:
     def __len__(self) -> int:
         return len(self.T_b1_g)
 
-    def take(self, idx) -> "GraspSet":
+    def take(self, idx) -> GraspSet:
         idx = np.asarray(idx, dtype=int).reshape(-1)
         return GraspSet(self.object_id, self.T_b1_g[idx], self.width[idx], self.contact_width[idx], self.depth[idx],
                         self.score[idx], {k: v[idx] for k, v in self.terms.items()}, self.kind,
                         {k: v[idx] for k, v in self.extra.items()})
 
     @staticmethod
-    def concat(sets: list["GraspSet"]) -> "GraspSet":
+    def concat(sets: list[GraspSet]) -> GraspSet:
         """One set holding the grasps of ``sets`` (same object and kind), in order."""
         sets = [s for s in sets if len(s)] or sets[:1]
         s0 = sets[0]
         cat = lambda f: np.concatenate([f(s) for s in sets])  # noqa: E731
         return GraspSet(s0.object_id, cat(lambda s: s.T_b1_g), cat(lambda s: s.width), cat(lambda s: s.contact_width),
                         cat(lambda s: s.depth), cat(lambda s: s.score),
-                        {k: cat(lambda s: s.terms[k]) for k in s0.terms}, s0.kind,
-                        {k: cat(lambda s: s.extra[k]) for k in s0.extra})
+                        {k: cat(lambda s, k=k: s.terms[k]) for k in s0.terms}, s0.kind,
+                        {k: cat(lambda s, k=k: s.extra[k]) for k in s0.extra})
 
     @staticmethod
-    def empty(object_id: int, kind: str = "pinch") -> "GraspSet":
+    def empty(object_id: int, kind: str = "pinch") -> GraspSet:
         z = np.zeros(0)
         return GraspSet(object_id, np.zeros((0, 4, 4)), z, z.copy(), z.copy(), z.copy(), {}, kind)
 
-    def transformed(self, T: np.ndarray) -> "GraspSet":
+    def transformed(self, T: np.ndarray) -> GraspSet:
         """The same grasps on the object moved rigidly by ``T`` (4, 4) (applied in b1)."""
         out = self.take(np.arange(len(self)))
         out.T_b1_g = np.asarray(T) @ self.T_b1_g
@@ -395,21 +395,20 @@ def _open_wider(gs: GraspSet, gripper: GripperModel, collider: GripperCollider, 
     return gs
 
 def _dedupe(gs: GraspSet, max_keep: int, pos_tol: float = 0.004, ang_tol: float = np.deg2rad(8)) -> GraspSet:
-    """Best-first, drop grasps within ``pos_tol`` and ``ang_tol`` of a better one (same or flipped about z)."""
+    """Best-first, drop grasps within ``pos_tol`` and ``ang_tol`` of a better one (same or flipped about z).
+
+    The relation is symmetric, so each kept grasp marks every grasp near it at once (one vectorised test per
+    kept grasp instead of one Python test per pair)."""
     order = np.argsort(-gs.score)
     kept: list[int] = []
     cos_t = np.cos(ang_tol)
+    P, Z, Y = gs.T_b1_g[:, :3, 3], gs.T_b1_g[:, :3, 2], gs.T_b1_g[:, :3, 1]
+    near = np.zeros(len(gs), dtype=bool)
     for i in order:
-        Ti = gs.T_b1_g[i]
-        dup = False
-        for j in kept:
-            Tj = gs.T_b1_g[j]
-            if np.linalg.norm(Ti[:3, 3] - Tj[:3, 3]) < pos_tol and Ti[:3, 2] @ Tj[:3, 2] > cos_t \
-                    and abs(Ti[:3, 1] @ Tj[:3, 1]) > cos_t:
-                dup = True
-                break
-        if not dup:
-            kept.append(int(i))
-            if len(kept) >= max_keep:
-                break
+        if near[i]:
+            continue
+        kept.append(int(i))
+        if len(kept) >= max_keep:
+            break
+        near |= (np.linalg.norm(P - P[i], axis=1) < pos_tol) & (Z @ Z[i] > cos_t) & (np.abs(Y @ Y[i]) > cos_t)
     return gs.take(kept)

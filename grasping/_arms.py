@@ -23,7 +23,7 @@ class Arm:
     T_b1_b: np.ndarray
     reach: ReachFilter
 
-    def for_scene(self, points_b1: np.ndarray) -> "Arm":
+    def for_scene(self, points_b1: np.ndarray) -> Arm:
         """This arm with its reach filter bound to a scene map (when the filter supports it)."""
         f = getattr(self.reach, "for_scene", None)
         return Arm(self.name, self.T_b1_b, f(points_b1) if f else self.reach)

@@ -6,6 +6,10 @@ in along its approach axis from the pre-grasp (``approach`` metres back) to the 
 axes include the approach axis that volume is a longer box; for any other shape it is the convex hull
 (``coal.Convex.convexHull``) of its bounding box at both ends. So a grasp whose fingers would pass
 through a neighbour on the way in is rejected, not only one whose final pose overlaps it.
+
+Broad phases keep coal's exact tests for the pairs that can touch (bounding spheres against a grid of
+occupied cells for the scene, against each other for two grippers); ``PointClearance`` answers whether
+rigidly moved copies of an object's points keep a clearance from the scene (the hand-over's transfer poses).
 """
 
 from __future__ import annotations
@@ -14,7 +18,8 @@ import numpy as np
 
 from ._gripper import GripperModel
 
-__all__ = ["SceneOctree", "GripperCollider", "grippers_collide", "grippers_distance", "points_in_gripper"]
+__all__ = ["SceneOctree", "GripperCollider", "grippers_collide", "grippers_collide_many", "grippers_distance",
+           "points_in_gripper"]
 
 
 class SceneOctree:
@@ -27,6 +32,41 @@ class SceneOctree:
         self.points = P
         self.resolution = float(resolution)
         self.octree = coal.makeOctree(P, self.resolution) if len(P) else None
+        self._counts = None  # (origin, cell, prefix sums of occupied cells), built on the first query
+
+    GRID_CELL = 0.01  # m, the broad phase's cells (coarser for scenes so large that the grid would pass MAX_CELLS)
+    MAX_CELLS = 2_000_000
+
+    def maybe_near(self, centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
+        """(M,) bool: some point may lie within ``radii`` (M,) of ``centres`` (M, 3); False only where none does.
+
+        A dense grid of occupied cells with 3D prefix sums counts the occupied cells a query's bounding cube
+        touches in constant time (vectorised over the queries): a cheap broad phase before coal's octree."""
+        c = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+        r = np.asarray(radii, dtype=np.float64).reshape(-1, 1)
+        if not len(self.points):
+            return np.zeros(len(c), dtype=bool)
+        if self._counts is None:
+            P = self.points
+            span = np.ptp(P, axis=0) + 2 * self.GRID_CELL
+            cell = max(self.GRID_CELL, float(np.prod(span) / self.MAX_CELLS) ** (1 / 3))
+            origin = P.min(axis=0) - cell
+            idx = np.floor((P - origin) / cell).astype(np.int64)
+            occ = np.zeros(tuple(idx.max(axis=0) + 2), dtype=np.int32)
+            occ[tuple(idx.T)] = 1
+            S = np.zeros(tuple(np.array(occ.shape) + 1), dtype=np.int32)
+            S[1:, 1:, 1:] = occ.cumsum(0, dtype=np.int32).cumsum(1, dtype=np.int32).cumsum(2, dtype=np.int32)
+            self._counts = (origin, cell, S)
+        origin, cell, S = self._counts
+        dims = np.array(S.shape) - 1
+        lo = np.clip(np.floor((c - r - origin) / cell).astype(np.int64), 0, dims - 1)
+        hi = np.clip(np.floor((c + r - origin) / cell).astype(np.int64), 0, dims - 1) + 1
+        empty = np.any((c + r - origin) < 0, axis=1) | np.any((c - r - origin) >= dims * cell, axis=1)
+        x0, y0, z0 = lo.T
+        x1, y1, z1 = hi.T
+        n = (S[x1, y1, z1] - S[x0, y1, z1] - S[x1, y0, z1] - S[x1, y1, z0]
+             + S[x0, y0, z1] + S[x0, y1, z0] + S[x1, y0, z0] - S[x0, y0, z0])
+        return (n > 0) & ~empty
 
 
 def _box_sweep(shape, sweep_local: np.ndarray):
@@ -56,6 +96,13 @@ def _hull_sweep(aabb: np.ndarray, sweep_local: np.ndarray):
     return coal.Convex.convexHull(v, False, ""), np.zeros(3)
 
 
+def _local_aabb(geometry) -> np.ndarray:
+    """(2, 3) min and max corner of a coal shape's box in its own frame."""
+    geometry.computeLocalAABB()
+    bb = geometry.aabb_local
+    return np.array([np.asarray(bb.min_, dtype=np.float64), np.asarray(bb.max_, dtype=np.float64)])
+
+
 class GripperCollider:
     """Checks grasps against a scene octree, with or without the approach sweep.
 
@@ -73,13 +120,15 @@ class GripperCollider:
             sweep_local = R.T @ np.array([0.0, 0.0, -self.approach])
             sw = _box_sweep(s.geometry, sweep_local) if self.approach > 0 else (s.geometry, np.zeros(3))
             self.swept.append(sw if sw is not None else _hull_sweep(s.aabb_local, sweep_local))
+        self.sweep_offsets = np.stack([o for _, o in self.swept])  # (S, 3) in the shapes' frames
+        # local boxes (S, 2, 3) of the shapes and of their sweeps (offset included), for broad phases
+        self.local_aabbs = np.stack([_local_aabb(s.geometry) for s in gripper.shapes])
+        self.swept_local_aabbs = np.stack([_local_aabb(g) for g, _ in self.swept])  # placed with the offset
 
     def _placements(self, T_b_g: np.ndarray, width: np.ndarray, swept: bool) -> np.ndarray:
         T = self.gripper.shape_poses(T_b_g, width)  # (N, S, 4, 4)
         if swept:
-            off = np.stack([o for _, o in self.swept])  # (S, 3) in shape frames
-            T = T.copy()
-            T[..., :3, 3] += np.einsum("nsij,sj->nsi", T[..., :3, :3], off)
+            T[..., :3, 3] += np.einsum("nsij,sj->nsi", T[..., :3, :3], self.sweep_offsets)
         return T
 
     def collides(self, scene: SceneOctree, T_b_g: np.ndarray, width: np.ndarray, swept: bool = True,
@@ -92,16 +141,23 @@ class GripperCollider:
         hit = np.zeros(n, dtype=bool)
         if scene.octree is None or n == 0:
             return hit
-        T = self._placements(T_b_g, width, swept)
+        idx = np.arange(n) if active is None else np.nonzero(active)[0]
+        T = self._placements(T_b_g[idx], np.broadcast_to(np.asarray(width, dtype=np.float64), (n,))[idx], swept)
         geoms = [g for g, _ in self.swept] if swept else [s.geometry for s in self.gripper.shapes]
+        # broad phase: a shape can touch an occupied octree cell within the margin only when some point lies
+        # within its bounding sphere's radius + margin + the cell's diagonal (the point is inside the cell)
+        centres, radii = _bounding_spheres(self, T, swept)
+        reach = radii + float(margin) + np.sqrt(3.0) * scene.resolution + 1e-9
+        near = scene.maybe_near(centres.reshape(-1, 3), np.tile(reach, len(idx))).reshape(len(idx), -1)
         req, res = coal.CollisionRequest(), coal.CollisionResult()
         req.security_margin = float(margin)
         ident = coal.Transform3s()
-        idx = range(n) if active is None else np.nonzero(active)[0]
-        for i in idx:
+        for j, i in enumerate(idx):
             for k, g in enumerate(geoms):
+                if not near[j, k]:
+                    continue
                 res.clear()
-                if coal.collide(g, coal.Transform3s(T[i, k, :3, :3], T[i, k, :3, 3]), scene.octree, ident, req, res):
+                if coal.collide(g, coal.Transform3s(T[j, k, :3, :3], T[j, k, :3, 3]), scene.octree, ident, req, res):
                     hit[i] = True
                     break
         return hit
@@ -121,26 +177,57 @@ class GripperCollider:
         return out
 
 
+def _bounding_spheres(collider: GripperCollider, T: np.ndarray, swept: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Centres (N, S, 3) and radii (S,) of spheres around each shape (swept or not) placed at ``T`` (N, S, 4, 4)."""
+    boxes = collider.swept_local_aabbs if swept else collider.local_aabbs  # (S, 2, 3)
+    c_loc = 0.5 * (boxes[:, 0] + boxes[:, 1])
+    r = 0.5 * np.linalg.norm(boxes[:, 1] - boxes[:, 0], axis=1)
+    return np.einsum("nsij,sj->nsi", T[..., :3, :3], c_loc) + T[..., :3, 3], r
+
+
+def grippers_collide_many(collider: GripperCollider, T_b_g1: np.ndarray, w1: float, T_b_g2: np.ndarray,
+                          w2: np.ndarray, margin: float = 0.0, swept1: bool = False, swept2: bool = False) -> np.ndarray:
+    """(K,) bool: one gripper (pose (4, 4), opening ``w1``) comes within ``margin`` of each of K others (poses
+    (K, 4, 4) in the same frame, openings ``w2`` (K,)); ``swept1`` / ``swept2`` use that gripper's approach (or
+    retreat) sweep instead of its pose.
+
+    A broad phase on bounding spheres (all K x S x S shape pairs at once in numpy) leaves coal's exact test to
+    the pairs whose spheres come within ``margin``: the answer is coal's, the spheres only skip pairs that
+    cannot touch."""
+    import coal
+
+    T2 = np.asarray(T_b_g2, dtype=np.float64).reshape(-1, 4, 4)
+    K = len(T2)
+    A = collider._placements(np.asarray(T_b_g1, dtype=np.float64)[None], np.array([float(w1)]), swept1)[0]  # (S, 4, 4)
+    B = collider._placements(T2, np.broadcast_to(np.asarray(w2, dtype=np.float64), (K,)), swept2)  # (K, S, 4, 4)
+    ca, ra = _bounding_spheres(collider, A[None], swept1)
+    cb, rb = _bounding_spheres(collider, B, swept2)
+    gap = np.linalg.norm(cb[:, None, :, :] - ca[0][None, :, None, :], axis=-1) - ra[None, :, None] - rb[None, None, :]
+    near = gap <= margin + 1e-9  # (K, Sa, Sb): pairs the exact test must see
+    hit = np.zeros(K, dtype=bool)
+    if not near.any():
+        return hit
+    ga = [g for g, _ in collider.swept] if swept1 else [s.geometry for s in collider.gripper.shapes]
+    gb = [g for g, _ in collider.swept] if swept2 else [s.geometry for s in collider.gripper.shapes]
+    ta = [coal.Transform3s(Ta[:3, :3], Ta[:3, 3]) for Ta in A]
+    req, res = coal.CollisionRequest(), coal.CollisionResult()
+    req.security_margin = float(margin)
+    for k, a, b in zip(*np.nonzero(near)):
+        if hit[k]:
+            continue
+        res.clear()
+        Tb = B[k, b]
+        if coal.collide(ga[a], ta[a], gb[b], coal.Transform3s(Tb[:3, :3], Tb[:3, 3]), req, res):
+            hit[k] = True
+    return hit
+
+
 def grippers_collide(collider: GripperCollider, T_b_g1: np.ndarray, w1: float, T_b_g2: np.ndarray, w2: float,
                      margin: float = 0.0, swept1: bool = False, swept2: bool = False) -> bool:
     """True when two grippers (poses (4, 4) in one frame, openings w1, w2) come within ``margin`` of each
     other; ``swept1`` / ``swept2`` use that gripper's approach (or retreat) sweep instead of its pose."""
-    import coal
-
-    geoms = [g for g, _ in collider.swept], [s.geometry for s in collider.gripper.shapes]
-    A = collider._placements(np.asarray(T_b_g1)[None], np.array([w1]), swept1)[0]
-    B = collider._placements(np.asarray(T_b_g2)[None], np.array([w2]), swept2)[0]
-    ga = geoms[0] if swept1 else geoms[1]
-    gb = geoms[0] if swept2 else geoms[1]
-    req, res = coal.CollisionRequest(), coal.CollisionResult()
-    req.security_margin = float(margin)
-    for sa, Ta in zip(ga, A):
-        ta = coal.Transform3s(Ta[:3, :3], Ta[:3, 3])
-        for sb, Tb in zip(gb, B):
-            res.clear()
-            if coal.collide(sa, ta, sb, coal.Transform3s(Tb[:3, :3], Tb[:3, 3]), req, res):
-                return True
-    return False
+    return bool(grippers_collide_many(collider, T_b_g1, w1, np.asarray(T_b_g2)[None], np.array([float(w2)]),
+                                      margin, swept1, swept2)[0])
 
 
 def grippers_distance(collider: GripperCollider, T_b_g1: np.ndarray, w1: float, T_b_g2: np.ndarray, w2: float) -> float:
@@ -168,3 +255,75 @@ def points_in_gripper(gripper: GripperModel, T_b_g: np.ndarray, width: float, P:
         lo, hi = s.aabb_local
         inside |= np.all((loc >= lo - margin) & (loc <= hi + margin), axis=1)
     return inside
+
+
+class PointClearance:
+    """Whether rigidly moved copies of a point set keep ``clearance`` (m) from fixed points (N, 3).
+
+    Exact: a point is too close when a fixed point lies within ``clearance`` of it (scipy ``cKDTree``). For the
+    query points inside ``region`` ((lo (3,), hi (3,)); default: the fixed points' box) a grid of cells a
+    quarter of the clearance wide decides most of them without the tree: a point whose cell or a neighbour
+    of it (3 x 3 x 3) holds a fixed point is too close (two cell diagonals are under the clearance); a point
+    more than four cells from every such cell is clear (farther than four cell widths). Only the points in
+    between, and those outside the region, go to the tree. Built once per point set, it answers thousands
+    of moves.
+    """
+
+    MAX_CELLS = 4_000_000
+
+    def __init__(self, points: np.ndarray, clearance: float, region: tuple[np.ndarray, np.ndarray] | None = None):
+        from scipy.ndimage import binary_dilation
+        from scipy.spatial import cKDTree
+
+        P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        c = self.clearance = float(clearance)
+        self.points = P
+        if region is None:
+            region = (P.min(axis=0), P.max(axis=0)) if len(P) else (np.zeros(3), np.zeros(3))
+        self.lo, self.hi = (np.asarray(r, dtype=np.float64).reshape(3) for r in region)
+        # only fixed points within the clearance of the region can be near a query point inside it
+        box_lo, box_hi = self.lo - c, self.hi + c
+        near_box = P[np.all((P >= box_lo) & (P <= box_hi), axis=1)]
+        self.cell = max(c / 4, float(np.prod(box_hi - box_lo) / self.MAX_CELLS) ** (1 / 3), 1e-6)
+        # cells (Chebyshev) within which a fixed point is surely within the clearance: (k + 1) diagonals < c
+        self.sure = int(np.floor(c / (self.cell * np.sqrt(3.0)) - 1e-9)) - 1
+        reach = int(np.ceil(c / self.cell))  # cells a too-close fixed point can be away, along each axis
+        self.origin = box_lo
+        self.shape = np.floor((box_hi - box_lo) / self.cell).astype(np.int64) + 1
+        occ = np.zeros(tuple(self.shape), dtype=bool)
+        idx = np.minimum(np.floor((near_box - box_lo) / self.cell).astype(np.int64), self.shape - 1)
+        occ[tuple(idx.T)] = True
+        cube = np.ones((3, 3, 3), dtype=bool)
+        self.too_close = (binary_dilation(occ, structure=cube, iterations=self.sure) if self.sure > 0 else occ) \
+            if self.sure >= 0 else np.zeros_like(occ)
+        self.near = binary_dilation(occ, structure=cube, iterations=reach)
+        self.tree = cKDTree(near_box)
+        self._tree_all = None  # for query points outside the region (built when first needed)
+
+    def clear(self, points: np.ndarray) -> np.ndarray:
+        """(M,) bool: each of M point sets ``points`` (M, K, 3) keeps the clearance from every fixed point."""
+        Q = np.asarray(points, dtype=np.float64)
+        M = Q.shape[0]
+        flat = Q.reshape(-1, 3)
+        owner = np.repeat(np.arange(M), len(flat) // max(M, 1))
+        inside = np.all((flat >= self.lo) & (flat <= self.hi), axis=1)
+        idx = np.floor((flat[inside] - self.origin) / self.cell).astype(np.int64)
+        idx = tuple(np.minimum(idx, self.shape - 1).T)
+        hit = np.zeros(len(flat), dtype=bool)
+        hit[inside] = self.too_close[idx]
+        bad = np.bincount(owner[hit], minlength=M) > 0
+        cand = np.zeros(len(flat), dtype=bool)
+        cand[inside] = self.near[idx]
+        cand &= ~hit & ~bad[owner]  # a move already too close needs no more answers
+        if cand.any():
+            d, _ = self.tree.query(flat[cand], k=1, distance_upper_bound=self.clearance)
+            bad |= np.bincount(owner[cand][np.isfinite(d)], minlength=M) > 0
+        out = ~inside & ~bad[owner]
+        if out.any():
+            if self._tree_all is None:
+                from scipy.spatial import cKDTree
+
+                self._tree_all = cKDTree(self.points)
+            d, _ = self._tree_all.query(flat[out], k=1, distance_upper_bound=self.clearance)
+            bad |= np.bincount(owner[out][np.isfinite(d)], minlength=M) > 0
+        return ~bad

@@ -14,6 +14,7 @@ faces grows with it (linear for prismatic fingers, checked).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -140,9 +141,16 @@ class GripperModel:
         """Placements ``(N, S, 4, 4)`` in frame b of every shape for grasps ``T_b_g`` (N, 4, 4) at ``width`` (N,)."""
         T_b_g = np.asarray(T_b_g, dtype=np.float64).reshape(-1, 4, 4)
         w = np.broadcast_to(np.asarray(width, dtype=np.float64), (len(T_b_g),))
-        # T_g_s per shape, per candidate: (N, S, 4, 4)
-        T_g_s = np.stack([s.T_g_s(w) for s in self.shapes], axis=1)
+        T0, motion = self._shape_frames
+        # T_g_s per shape, per candidate: (N, S, 4, 4); a new array, so callers may change it in place
+        T_g_s = np.broadcast_to(T0, (len(w),) + T0.shape).copy()
+        T_g_s[..., :3, 3] += w[:, None, None] * motion
         return T_b_g[:, None] @ T_g_s
+
+    @cached_property
+    def _shape_frames(self) -> tuple[np.ndarray, np.ndarray]:
+        """(S, 4, 4) every shape's placement in g at opening 0 and (S, 3) its motion per metre of opening."""
+        return (np.stack([s.T_g_s0 for s in self.shapes]), np.stack([s.motion_g for s in self.shapes]))
 
 
 def _local_aabb(geometry) -> np.ndarray:

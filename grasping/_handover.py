@@ -28,13 +28,14 @@ both arms reach, and a fixed order spent its IK budget on the giver's side alone
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+
 import numpy as np
 
 from bimanual_app.transforms import inv_T
 
 from ._antipodal import GraspSet, rotate_about_approach
 from ._arms import Arm, ArmGrasps, TwoArmCheck, reachable_grasps
-from ._collision import GripperCollider, grippers_collide, grippers_distance
+from ._collision import GripperCollider, PointClearance, grippers_collide_many, grippers_distance
 from ._objects import ObjectGeometry, Support
 
 __all__ = ["HandoverParams", "Handover", "handover_givers", "plan_handover", "plan_handovers", "release_width",
@@ -203,9 +204,10 @@ def _align(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return _axis_angle(v / s, float(np.arctan2(s, c)))
 
 
-def _transfer_moves(geo: ObjectGeometry, support: Support, T_b1_b2: np.ndarray, G: np.ndarray,
-                    p: HandoverParams) -> list[np.ndarray]:
-    """Rigid motions (4, 4) of the object, for the giver's pick grasp ``G`` (4, 4), in order of preference."""
+def _transfer_targets(geo: ObjectGeometry, support: Support, T_b1_b2: np.ndarray, p: HandoverParams
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """(K, 3) the object centre's places at the transfer poses, in order of preference, and (3,) the unit
+    direction from the primary's base to the secondary's (horizontal)."""
     up = support.up
     o2 = T_b1_b2[:3, 3]
     base_line = o2 - (o2 @ up) * up
@@ -214,21 +216,27 @@ def _transfer_moves(geo: ObjectGeometry, support: Support, T_b1_b2: np.ndarray, 
     floor = support.height * up  # the table plane below b1's origin
     lowest = float(geo.centre @ up - support.height) + p.min_rise  # the centre's height above the table
     heights = [h for h in p.heights if h >= lowest] or [lowest]
+    targets = [f * base_line + floor + h * up + off * across for h in heights for f in p.fractions for off in p.offsets]
+    return np.array(targets).reshape(-1, 3), line
+
+
+def _transfer_moves(geo: ObjectGeometry, support: Support, T_b1_b2: np.ndarray, G: np.ndarray,
+                    p: HandoverParams) -> list[np.ndarray]:
+    """Rigid motions (4, 4) of the object, for the giver's pick grasp ``G`` (4, 4), in order of preference."""
+    up = support.up
+    targets, line = _transfer_targets(geo, support, T_b1_b2, p)
     zg = G[:3, 2]
     moves = []
-    for h in heights:
-        for f in p.fractions:
-            for off in p.offsets:
-                target = f * base_line + floor + h * up + off * across
-                for tilt in p.tilts:
-                    z_t = np.cos(tilt) * line - np.sin(tilt) * up
-                    R0 = _align(zg, z_t)
-                    for roll in p.rolls:
-                        R = _axis_angle(z_t, roll) @ R0
-                        T = np.eye(4)
-                        T[:3, :3] = R
-                        T[:3, 3] = target - R @ geo.centre
-                        moves.append(T)
+    for target in targets:
+        for tilt in p.tilts:
+            z_t = np.cos(tilt) * line - np.sin(tilt) * up
+            R0 = _align(zg, z_t)
+            for roll in p.rolls:
+                R = _axis_angle(z_t, roll) @ R0
+                T = np.eye(4)
+                T[:3, :3] = R
+                T[:3, 3] = target - R @ geo.centre
+                moves.append(T)
     return moves
 
 
@@ -237,24 +245,22 @@ def _clear_receivers(collider: GripperCollider, G: np.ndarray, w_open: float, w_
     """Indices of the free-space grasps ``free`` whose open gripper (swept along its approach) keeps ``gap``
     from the giver's closed gripper at ``G`` (4, 4), and whose closed gripper the giver's retreat sweep (open
     at ``w_open``) keeps ``gap`` from. Both grippers hold the object where it lies; moving it moves both."""
-    keep = []
-    for k in range(len(free)):
-        if grippers_collide(collider, G, w_closed, free.T_b1_g[k], free.width[k], margin=gap, swept2=True):
-            continue
-        if grippers_collide(collider, G, w_open, free.T_b1_g[k], free.contact_width[k], margin=gap, swept1=True):
-            continue
-        keep.append(k)
-    return np.array(keep, dtype=int)
+    if not len(free):
+        return np.zeros(0, dtype=int)
+    hit = grippers_collide_many(collider, G, w_closed, free.T_b1_g, free.width, margin=gap, swept2=True)
+    todo = np.nonzero(~hit)[0]
+    hit[todo] = grippers_collide_many(collider, G, w_open, free.T_b1_g[todo], free.contact_width[todo], margin=gap,
+                                      swept1=True)
+    return np.nonzero(~hit)[0]
 
 
-def _clear_of_scene(tree, moves: np.ndarray, obj_pts: np.ndarray, clearance: float) -> np.ndarray:
+def _clear_of_scene(index, moves: np.ndarray, obj_pts: np.ndarray) -> np.ndarray:
     """(M,) bool (or a bool for one move (4, 4)): the object's points ``obj_pts`` (K, 3) moved by each of
-    ``moves`` (M, 4, 4) keep ``clearance`` from the scene points in the KD-tree ``tree``."""
+    ``moves`` (M, 4, 4) keep the clearance of ``index`` (a ``PointClearance`` of the scene's points)."""
     one = np.ndim(moves) == 2
     Ms = np.asarray(moves, dtype=np.float64).reshape(-1, 4, 4)
     moved = np.einsum("mij,pj->mpi", Ms[:, :3, :3], obj_pts) + Ms[:, None, :3, 3]
-    d, _ = tree.query(moved.reshape(-1, 3), k=1, distance_upper_bound=clearance)
-    ok = np.isinf(d).reshape(len(Ms), -1).all(axis=1)
+    ok = index.clear(moved)
     return bool(ok[0]) if one else ok
 
 
@@ -264,6 +270,20 @@ def _prior(arm: Arm, T_b1_g: np.ndarray) -> np.ndarray:
     if prior is None or len(T_b1_g) == 0:
         return np.zeros(len(T_b1_g))
     return prior(inv_T(arm.T_b1_b) @ T_b1_g)
+
+
+def _prior_min(arm: Arm, moves_b1: np.ndarray, T_b1_g: np.ndarray, cut: float) -> np.ndarray:
+    """(M,) per rigid motion ``moves_b1`` (M, 4, 4), the smallest prior of the arm over the poses ``T_b1_g``
+    (K, 4, 4) moved by it; values not under ``cut`` may come back as ``inf``."""
+    T_b_b1 = inv_T(arm.T_b1_b)
+    fast = getattr(arm.reach, "prior_min", None)
+    if fast is not None:
+        return fast(T_b_b1 @ moves_b1, T_b1_g, cut)
+    prior = getattr(arm.reach, "prior", None)
+    if prior is None or len(T_b1_g) == 0:
+        return np.zeros(len(moves_b1)) if prior is None else np.full(len(moves_b1), np.inf)
+    Rt = (T_b_b1 @ moves_b1)[:, None] @ np.asarray(T_b1_g)[None]
+    return prior(Rt.reshape(-1, 4, 4)).reshape(len(moves_b1), -1).min(axis=1)
 
 
 def handover_givers(picks: GraspSet, free: GraspSet, reached: ArmGrasps, prim: Arm, collider: GripperCollider,
@@ -362,13 +382,15 @@ def _search(geo, support, giver, free, arms, collider, check, params, clear, obs
     sec_reach = with_pre(params.receiver_pregrasp) if with_pre is not None else sec.reach
     T_b2_b1 = inv_T(sec.T_b1_b)
     T_b_b1 = inv_T(prim.T_b1_b)
-    tree = None
+    scene_clear = None
     if obstacles_b1 is not None and len(obstacles_b1):
-        from scipy.spatial import cKDTree
-
-        tree = cKDTree(np.asarray(obstacles_b1, dtype=np.float64).reshape(-1, 3))
         pts = geo.points if object_points_b1 is None else np.asarray(object_points_b1, dtype=np.float64).reshape(-1, 3)
         obj_pts = pts[:: max(1, len(pts) // 300)]
+        # every transfer pose puts the object's centre on one of the targets: its points stay within its radius
+        targets, _ = _transfer_targets(geo, support, sec.T_b1_b, params)
+        radius = float(np.linalg.norm(obj_pts - geo.centre, axis=1).max()) if len(obj_pts) else 0.0
+        scene_clear = PointClearance(obstacles_b1, params.object_clearance,
+                                     (targets.min(axis=0) - radius, targets.max(axis=0) + radius))
     # (giver, move) candidates with their predicted cost: the giver's prior + the best clear receiver's
     cands = []  # (cost, order of preference, giver index, move, clear receivers)
     n_pref = 0
@@ -384,17 +406,15 @@ def _search(geo, support, giver, free, arms, collider, check, params, clear, obs
         moves = np.stack(_transfer_moves(geo, support, sec.T_b1_b, G, params))
         pg = _prior(prim, moves @ G)
         ok = np.nonzero(pg < params.prior_cut)[0]
-        if tree is not None and len(ok):
-            free_of_scene = _clear_of_scene(tree, moves[ok], obj_pts, params.object_clearance)
+        if scene_clear is not None and len(ok):
+            free_of_scene = _clear_of_scene(scene_clear, moves[ok], obj_pts)
             stats["object_in_scene"] += int((~free_of_scene).sum())
             ok = ok[free_of_scene]
         if not len(ok):
             continue
         clear_g = clear_g[: params.max_receivers_ranked]  # best score first
-        # the receivers' poses for every kept move: (M, K, 4, 4)
-        Rt = moves[ok][:, None] @ free.T_b1_g[clear_g][None]
-        pr = _prior(sec, Rt.reshape(-1, 4, 4)).reshape(len(ok), len(clear_g))
-        best = pr.min(axis=1)
+        # per kept move, the best predicted receiver among the clear ones moved with the object
+        best = _prior_min(sec, moves[ok], free.T_b1_g[clear_g], params.prior_cut)
         for j, m in enumerate(ok):
             if best[j] < params.prior_cut:
                 cands.append((float(pg[m] + best[j]), n_pref + int(m), gi, moves[m], clear_g))
@@ -413,7 +433,7 @@ def _search(geo, support, giver, free, arms, collider, check, params, clear, obs
         if rg.flipped[0]:
             Gt = rotate_about_approach(Gt)
             move = Gt @ inv_T(G)
-            if tree is not None and not _clear_of_scene(tree, move, obj_pts, params.object_clearance):
+            if scene_clear is not None and not _clear_of_scene(scene_clear, move, obj_pts):
                 stats["object_in_scene"] += 1  # turned with the giver's wrist, the object meets the scene
                 continue
         Rt = move @ free.T_b1_g[clear]

@@ -18,8 +18,8 @@ filter of the arm it is listed for; nothing unchecked is returned.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Callable
 
 import numpy as np
 
@@ -32,8 +32,16 @@ from ._gripper import GripperModel
 from ._handover import Handover, HandoverParams, handover_givers, plan_handovers
 from ._inputs import SceneCloud
 from ._joint import JointPair, joint_pairs, spread_order
-from ._objects import (ObjectGeometry, Support, check_graspable, closed_geometry, estimate_support, object_geometry,
-                       primitive_fit, unseen_space)
+from ._objects import (
+    ObjectGeometry,
+    Support,
+    check_graspable,
+    closed_geometry,
+    estimate_support,
+    object_geometry,
+    primitive_fit,
+    unseen_space,
+)
 from ._push import PushParams, push_contacts
 
 __all__ = ["PlanParams", "ObjectPlan", "GraspPlan", "plan_grasps", "plan_object"]

@@ -103,6 +103,12 @@ class PushParams:
     top_margin: float = 0.0
 
 
+def _cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The cross product of two 3-vectors (np.cross costs ten times as much on one pair: the frame loop below
+    makes thousands)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
 def _without_near(octree: SceneOctree, points: np.ndarray, radius: float) -> SceneOctree:
     """``octree``'s points farther than ``radius`` from every one of ``points`` (M, 3), as a new octree."""
     from scipy.spatial import cKDTree
@@ -172,9 +178,10 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
             face_off = float(np.median(along[own_face])) if own_face.sum() >= params.min_pad_points \
                 else float(np.percentile(along[near_face], 90))
             on_face = np.abs(along - face_off) < params.pad_depth
+            # the face's own points, for the per-fingertip tests below (the same points as masking all of them)
+            f_lat, f_hgt, f_obs, f_P = lat[on_face], hgt[on_face], geo.observed[on_face], P[on_face]
             top = (N @ up > 0.8) & (hgt > 0.5 * ext[2] - 0.02) & (along < face_off - params.pad_depth)
             tops[(axis, sign)] = SceneOctree(P[top], 0.002) if top.any() else None
-            obs = geo.observed
             # the face as a whole: planar (a plane fits its points within face_rms) and inside the friction
             # cone; then a fingertip on a part of it no camera saw still lands on it (the box model)
             planar, face_align, rect = False, 0.0, None
@@ -198,17 +205,17 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
                         # lean: the approach turned about the face normal, its top towards t (the pad's
                         # plane stays on the face): an arm beside the face, not in front of it, carries a
                         # steep gripper up only when it leans away from the arm's base
-                        z = np.cos(lean) * z + np.sin(lean) * np.cross(n, z) + (1 - np.cos(lean)) * (n @ z) * n
+                        z = np.cos(lean) * z + np.sin(lean) * _cross3(n, z) + (1 - np.cos(lean)) * (n @ z) * n
                         # the fingers are closed into one pad (2 x 2 cm for the Piper), so the press is
                         # symmetric about the gripper whatever its roll about z; the rolls only help the arm
                         # reach it
-                        zt = np.cross(z, t)
+                        zt = _cross3(z, t)
                         zt /= np.linalg.norm(zt)
-                        tz = np.cross(zt, z)  # t made perpendicular to z (it is not when swivelled)
+                        tz = _cross3(zt, z)  # t made perpendicular to z (it is not when swivelled)
                         for roll in params.rolls:
                             y = np.cos(roll) * tz + np.sin(roll) * zt
                             y = y / np.linalg.norm(y)
-                            frames.append((tilt, np.stack([np.cross(y, z), y, z], axis=1)))
+                            frames.append((tilt, np.stack([_cross3(y, z), y, z], axis=1)))
                 for tilt, R in frames:
                     # fingertips on the face: shift along the normal so the deepest tip corner touches it
                     depth_c = [(tc @ R.T) @ -n for tc in tips]
@@ -232,11 +239,11 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
                         # plane fitted to them (per-point normals of a face seen at a grazing angle are
                         # too noisy; a sparse face still has a well-defined plane)
                         mid_l, mid_h = 0.5 * (lo_l + hi_l), 0.5 * (lo_h + hi_h)
-                        around = on_face & (np.hypot(lat - mid_l, hgt - mid_h) < params.fit_radius)
+                        around = np.hypot(f_lat - mid_l, f_hgt - mid_h) < params.fit_radius
                         if around.sum() >= params.min_pad_points:
                             landed += 1
-                            seen += (around & obs).sum() >= params.min_pad_points
-                            Q = P[around] - P[around].mean(axis=0)
+                            seen += (around & f_obs).sum() >= params.min_pad_points
+                            Q = f_P[around] - f_P[around].mean(axis=0)
                             normal = np.linalg.svd(Q, full_matrices=False)[2][-1]
                             align = min(align, abs(float(normal @ n)))
                         elif planar and rect[0][0] <= mid_l <= rect[0][1] and rect[1][0] <= mid_h <= rect[1][1]:

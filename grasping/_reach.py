@@ -26,8 +26,10 @@ when
 
 from __future__ import annotations
 
+import weakref
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable, Protocol
+from typing import Protocol
 
 import numpy as np
 
@@ -103,6 +105,7 @@ class ArmReach:
         self.n_solutions = int(n_solutions)
         self.q_current = robot.neutral() if q_current is None else np.asarray(q_current, dtype=np.float64)
         self.solver = _solver or IKSolver(robot, link=robot.tcp_link)
+        self._ik_cache: dict = {}  # see ``_first_ik``; shared with ``with_pregrasp`` copies (same arm, same IK)
         self.world = None
         if scene_points_b1 is not None:
             self.world = self._world(scene_points_b1)
@@ -126,21 +129,12 @@ class ArmReach:
     @property
     def _pose_map(self):
         """KD-tree over gripper poses of random configurations (position, weighted rotation): a capability map."""
-        if getattr(self.solver, "_grasp_pose_map", None) is None:
-            from scipy.spatial import cKDTree
-
-            q = self.robot.random_q(40000, rng=7)
-            T = self.robot.fk_link(q, self.robot.tcp_link)
-            feats = np.concatenate([T[:, :3, 3], self._ROT_W * T[:, :3, :3].reshape(-1, 9)], axis=1)
-            self.solver._grasp_pose_map = cKDTree(feats)  # cached with the (shared) solver
-            self.solver._grasp_pos_map = (cKDTree(T[:, :3, 3]), T[:, :3, 2].copy())
-        return self.solver._grasp_pose_map
+        return _capability_map(self.robot, self._ROT_W)[0]
 
     def approach_hints(self, p_b1: np.ndarray, radius: float = 0.05, max_hints: int = 200) -> np.ndarray:
         """(K, 3) approach directions (z of g, in b1) with which the arm was seen to reach within ``radius``
         of the point ``p_b1`` (3,): where to aim the grasp sampler's approach directions near an object."""
-        _ = self._pose_map
-        tree, Z = self.solver._grasp_pos_map
+        _, tree, Z = _capability_map(self.robot, self._ROT_W)
         p_b = inv_T(self.T_b1_b) @ np.append(np.asarray(p_b1, dtype=np.float64), 1.0)
         idx = tree.query_ball_point(p_b[:3], radius)
         Z_b = Z[np.asarray(idx, dtype=int)[:max_hints]]
@@ -157,11 +151,12 @@ class ArmReach:
     def _probed_approaches(self, p_b: np.ndarray) -> np.ndarray:
         """(K, 3) approach directions (in the arm's base frame) with which the IK reaches the point ``p_b``
         (3,): tilts of 0-80 degrees from straight down, at 12 azimuths, two turns about the approach each."""
-        out = []
+        dirs, poses = [], []
         for tilt in self._PROBE_TILTS:
             for k in range(self._PROBE_AZIMUTHS if tilt > 0 else 1):
                 az = 2 * np.pi * k / self._PROBE_AZIMUTHS
                 z = np.array([np.sin(tilt) * np.cos(az), np.sin(tilt) * np.sin(az), -np.cos(tilt)])
+                dirs.append(z)
                 for roll in (0.0, np.pi / 2):
                     a = np.array([np.cos(az + roll), np.sin(az + roll), 0.0])
                     y = a - (a @ z) * z
@@ -171,24 +166,67 @@ class ArmReach:
                     T = np.eye(4)
                     T[:3, :3] = np.stack([np.cross(y, z), y, z], axis=1)
                     T[:3, 3] = p_b
-                    if self.solver.solve(T, max_seeds=4).success:
-                        out.append(z)
-                        break
-        return np.array(out).reshape(-1, 3)
+                    poses.append(T)
+        ok = np.array([r.success for r in self.solver.solve_many(np.stack(poses), max_seeds=4)]).reshape(-1, 2)
+        return np.array(dirs)[ok.any(axis=1)].reshape(-1, 3)
 
     _ROT_W = 0.1  # metres per unit of rotation-matrix difference
 
-    def prior(self, T_b_g: np.ndarray) -> np.ndarray:
-        """(N,) distance from each grasp (or its turned twin) to the nearest pose the arm was seen to reach.
+    PRIOR_HORIZON = 0.12  # m: the largest prior distance any caller tells apart (its tiers and cut-offs)
 
-        A cheap predictor used to order the exact checks (small first); it decides nothing on its own.
+    def prior(self, T_b_g: np.ndarray) -> np.ndarray:
+        """(N,) distance from each grasp (or its turned twin) to the nearest pose the arm was seen to reach;
+        ``inf`` beyond ``PRIOR_HORIZON`` (the callers rank grasps within it and treat all beyond alike).
+
+        A cheap predictor used to order the exact checks (small first); it decides nothing on its own. The
+        horizon bounds the KD-tree search: most poses of a hand-over's search lie far from the map, and an
+        unbounded nearest-neighbour search in 12 dimensions visits much of the tree for each.
         """
         T = np.asarray(T_b_g, dtype=np.float64).reshape(-1, 4, 4)
-        d = []
-        for Tk in (T, rotate_about_approach(T)):
-            f = np.concatenate([Tk[:, :3, 3], self._ROT_W * Tk[:, :3, :3].reshape(-1, 9)], axis=1)
-            d.append(self._pose_map.query(f, k=1)[0])
-        return np.minimum(*d)
+        n = len(T)
+        both = np.concatenate([T, rotate_about_approach(T)])  # the grasps, then their turned twins
+        f = np.concatenate([both[:, :3, 3], self._ROT_W * both[:, :3, :3].reshape(-1, 9)], axis=1)
+        d = self._pose_map.query(f, k=1, distance_upper_bound=self.PRIOR_HORIZON)[0]
+        return np.minimum(d[:n], d[n:])
+
+    def prior_min(self, T_move: np.ndarray, T_set: np.ndarray, cut: float | None = None) -> np.ndarray:
+        """(M,) for each rigid motion ``T_move`` (M, 4, 4) (base frame), the smallest ``prior`` over the poses
+        ``T_set`` (K, 4, 4) moved by it: ``min_k prior(T_move[m] @ T_set[k])``; ``inf`` where that is not
+        under ``cut`` (default ``PRIOR_HORIZON``).
+
+        Exact, with far fewer tree queries than M x K: the feature distance between two poses of the set does
+        not change when both move rigidly (rotations keep both the position and the rotation parts' norms),
+        and the prior is 1-Lipschitz in the features, so ``prior(k) >= prior(j) - |f_k - f_j|`` for every pose
+        j already queried. A (move, pose) pair whose bound is not under the move's best so far is skipped.
+        """
+        cut = self.PRIOR_HORIZON if cut is None else min(float(cut), self.PRIOR_HORIZON)
+        Mv = np.asarray(T_move, dtype=np.float64).reshape(-1, 4, 4)
+        S = np.asarray(T_set, dtype=np.float64).reshape(-1, 4, 4)
+        S = np.concatenate([S, rotate_about_approach(S)])  # the prior takes the nearer of a pose and its twin
+        M, K = len(Mv), len(S)
+        best = np.full(M, np.inf)
+        if M == 0 or K == 0:
+            return best
+        fs = np.concatenate([S[:, :3, 3], self._ROT_W * S[:, :3, :3].reshape(K, 9)], axis=1)
+        D = np.linalg.norm(fs[:, None] - fs[None], axis=-1)  # (K, K), the same for every move
+        lb = np.zeros((M, K))  # lower bounds on each (move, pose) prior
+        todo = np.ones((M, K), dtype=bool)
+        tree = self._pose_map
+        while True:
+            live = todo & (lb < np.minimum(best, cut)[:, None])
+            if not live.any():
+                return np.where(best < cut, best, np.inf)
+            # per move, the pose with the smallest bound not yet queried
+            k = np.argmin(np.where(live, lb, np.inf), axis=1)
+            m = np.nonzero(live.any(axis=1))[0]
+            k = k[m]
+            T = Mv[m] @ S[k]
+            f = np.concatenate([T[:, :3, 3], self._ROT_W * T[:, :3, :3].reshape(-1, 9)], axis=1)
+            d = tree.query(f, k=1, distance_upper_bound=cut)[0]
+            todo[m, k] = False
+            best[m] = np.minimum(best[m], d)
+            # a pose farther than the cut from the map bounds the others only by the cut itself
+            lb[m] = np.maximum(lb[m], np.minimum(d, cut)[:, None] - D[k])
 
     def follow(self, T_b_g: np.ndarray, q: np.ndarray, direction_b: np.ndarray, distance: float) -> str:
         """'' when the arm carries its gripper from ``T_b_g`` (4, 4; joints ``q`` (J,)) ``distance`` metres along
@@ -209,7 +247,7 @@ class ArmReach:
             prev = res.q
         return ""
 
-    def with_pregrasp(self, pregrasp: float) -> "ArmReach":
+    def with_pregrasp(self, pregrasp: float) -> ArmReach:
         """The same filter (solver and scene map shared) checking pre-grasps ``pregrasp`` metres back."""
         import copy
 
@@ -217,7 +255,7 @@ class ArmReach:
         other.pregrasp = float(pregrasp)
         return other
 
-    def for_scene(self, points_b1: np.ndarray) -> "ArmReach":
+    def for_scene(self, points_b1: np.ndarray) -> ArmReach:
         """The same filter with another scene map (points (N, 3) in b1); shares the IK solver."""
         return ArmReach(self.robot, self.gripper, self.T_b1_b, points_b1, self.pregrasp, self.margin,
                         self.max_seeds, self.max_step, self.q_current, self.resolution, self.name, self.n_solutions,
@@ -239,6 +277,24 @@ class ArmReach:
             prev = res.q
         return prev, qs, ""
 
+    FIRST_IK_CACHE = 4096  # grasp poses whose IK (from q_current) is remembered
+
+    def _first_ik(self, T: np.ndarray) -> list:
+        """``solver.solve_many`` of poses ``T`` (K, 4, 4) from the current configuration, remembering each pose's
+        result: a push contact is checked once per way in, and its IK does not depend on the way in (the
+        seeds are deterministic: the current configuration and the nearest poses of the solver's table)."""
+        if self.max_seeds > 1 + self.solver.n_near:  # random seeds would make a repeat differ
+            return self.solver.solve_many(T, self.q_current, max_seeds=self.max_seeds)
+        cache = self._ik_cache
+        keys = [(Tk.tobytes(), self.q_current.tobytes(), self.max_seeds) for Tk in T]
+        todo = [k for k, key in enumerate(keys) if key not in cache]
+        if todo:
+            if len(cache) + len(todo) > self.FIRST_IK_CACHE:
+                cache.clear()
+            for k, r in zip(todo, self.solver.solve_many(T[todo], self.q_current, max_seeds=self.max_seeds)):
+                cache[keys[k]] = r
+        return [cache[key] for key in keys]
+
     def _collisions(self, Q: np.ndarray) -> str:
         """'' when configurations Q (K, J) are collision free, else what collides (the gripper's own shapes
         are not checked against the scene: see ``_world``)."""
@@ -258,11 +314,14 @@ class ArmReach:
         J = self.robot.nq_arm
         w = np.full(n, self.gripper.min_width) if width is None else np.broadcast_to(np.asarray(width, float), (n,))
         out = ReachResult(np.zeros(n, bool), np.full((n, J), np.nan), np.full((n, J), np.nan), np.zeros(n, bool), [""] * n)
+        # the grasps' IK, as given and turned about z, all in one batch (most of the cost: failures try every seed)
+        T_both = np.concatenate([T_b_g, rotate_about_approach(T_b_g)])
+        first = self._first_ik(T_both)
         for i in range(n):
             why = []
             for flip in (False, True):
-                T = rotate_about_approach(T_b_g[i]) if flip else T_b_g[i]
-                res = self.solver.solve(T, q_current=self.q_current, max_seeds=self.max_seeds)
+                T = T_both[n + i] if flip else T_b_g[i]
+                res = first[n + i] if flip else first[i]
                 if not res.success:
                     why.append(res.message)
                     continue
@@ -291,6 +350,23 @@ class ArmReach:
             if not out.ok[i]:
                 out.reason[i] = why[-1] if why else "unreachable"
         return out
+
+
+_MAPS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _capability_map(robot, rot_w: float, size: int = 40000) -> tuple:
+    """(pose KD-tree (position, ``rot_w`` x rotation), position KD-tree, approach axes (size, 3)) of the
+    gripper poses of ``size`` random configurations of ``robot``: built once per robot model in a process."""
+    per_robot = _MAPS.setdefault(robot, {})
+    if (rot_w, size) not in per_robot:
+        from scipy.spatial import cKDTree
+
+        q = robot.random_q(size, rng=7)
+        T = robot.fk_link(q, robot.tcp_link)
+        feats = np.concatenate([T[:, :3, 3], rot_w * T[:, :3, :3].reshape(-1, 9)], axis=1)
+        per_robot[(rot_w, size)] = (cKDTree(feats), cKDTree(T[:, :3, 3]), T[:, :3, 2].copy())
+    return per_robot[(rot_w, size)]
 
 
 class _Lazy:

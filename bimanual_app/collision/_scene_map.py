@@ -36,7 +36,6 @@ class SceneMap:
     def __init__(self, points: np.ndarray, resolution: float = 0.01, pad: float = 0.15,
                  crop: tuple[np.ndarray, np.ndarray] | None = None, source: str = "scene map"):
         import coal
-        from scipy import ndimage
 
         P = check_shape("points", np.asarray(points, dtype=np.float64), (None, 3))
         P = P[np.all(np.isfinite(P), axis=1)]
@@ -75,7 +74,7 @@ class SceneMap:
         idx = cells - self.cell_lo
         occ_grid[idx[:, 0], idx[:, 1], idx[:, 2]] = True
         self.shape = tuple(int(s) for s in shape)
-        self.edt = ndimage.distance_transform_edt(~occ_grid, sampling=h).astype(np.float32).ravel()
+        self.edt = _edt(~occ_grid, h).ravel()
         self._strides = np.array([self.shape[1] * self.shape[2], self.shape[2], 1], dtype=np.int64)
         self._dims = np.array(self.shape, dtype=np.int64)
         self.slack_lower = np.sqrt(3.0) * h
@@ -96,7 +95,7 @@ class SceneMap:
         """(...) lower bound of the distance from points (..., 3) to the occupied cells."""
         return self.lookup(P) - self.slack_lower
 
-    def without(self, mask: np.ndarray) -> "SceneMap":
+    def without(self, mask: np.ndarray) -> SceneMap:
         """A new map without the points where ``mask`` (N,) is True (an object cut out of the scene)."""
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != (len(self.points),):
@@ -110,6 +109,28 @@ class SceneMap:
         d, _ = cKDTree(np.asarray(points, dtype=np.float64)).query(self.points, k=1, distance_upper_bound=radius)
         return np.isfinite(d)
 
-    def without_near(self, points: np.ndarray, radius: float) -> "SceneMap":
+    def without_near(self, points: np.ndarray, radius: float) -> SceneMap:
         """A new map without the points within ``radius`` of any of ``points`` (M,3)."""
         return self.without(self.near_mask(points, radius))
+
+
+def _edt(free: np.ndarray, h: float, chunk_cells: int = 2_000_000) -> np.ndarray:
+    """``scipy.ndimage.distance_transform_edt(free, sampling=h)`` as float32, the same numbers, in a fifth of
+    the memory: scipy turns its feature transform (3 int32 per cell) into distances through several
+    whole-grid temporaries (about 60 bytes per cell: 700 MB for a 5 mm map of a table); here the same
+    arithmetic runs slab by slab along the first axis (about 17 bytes per cell at the peak)."""
+    from scipy import ndimage
+
+    ft = ndimage.distance_transform_edt(free, sampling=h, return_distances=False, return_indices=True)
+    out = np.empty(free.shape, dtype=np.float32)
+    rest = np.indices(free.shape[1:], dtype=np.int32)  # (2, n1, n2)
+    step = max(1, chunk_cells // max(1, int(np.prod(free.shape[1:]))))
+    for a in range(0, free.shape[0], step):
+        b = min(free.shape[0], a + step)
+        d = (ft[0, a:b] - np.arange(a, b, dtype=np.int32)[:, None, None]).astype(np.float64) * h
+        d2 = d * d
+        for k in (1, 2):
+            d = (ft[k, a:b] - rest[k - 1][None]).astype(np.float64) * h
+            d2 += d * d
+        out[a:b] = np.sqrt(d2)
+    return out

@@ -3,6 +3,8 @@
 Public API:
     IKSolver(robot, link=None, tol_pos=1e-4, tol_rot=1e-3, ...).solve(T_target, q_current=None,
              position_only=False, n_solutions=1) -> IKResult
+    IKSolver.solve_many(T_targets (N,4,4), q_current=None | (J,) | (N,J), ...) -> [IKResult] * N
+             (the same results as N ``solve`` calls; all targets' seeds descend together, vectorised)
     solve_ik(robot, T_target, q_current=None, **kw) -> IKResult   (caches one IKSolver per robot and link)
 """
 

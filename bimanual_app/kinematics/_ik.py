@@ -1,7 +1,7 @@
 """Inverse kinematics by damped least squares on a Pinocchio model, with several seeds.
 
 One solve runs Levenberg-Marquardt style damped least squares on the SE(3) log error of the target link
-(Pinocchio: ``computeJointJacobians`` + ``getFrameJacobian`` in the LOCAL frame, ``log6``), a
+(the frame Jacobian in its LOCAL axes and ``log6``, as Pinocchio defines them), a
 full step (1.0, capped in size far from the solution), with joints that sit on a limit and are pushed
 outwards frozen for the step (an active set), and the result clipped to the limits. A seed whose error
 stops shrinking is abandoned early. Seeds, in order: the
@@ -10,15 +10,22 @@ are nearest to the target (scipy cKDTree), then uniform random ones. Every conve
 is kept; they are returned sorted by joint-space distance to the current configuration, so the closest
 comes first. A target beyond the arm's reach (checked against the largest shoulder-to-tool distance of
 the table, with a margin) fails at once without iterating.
+
+``solve_many`` runs the seeds of many targets together, vectorised over (target, seed) lanes (``_dls``):
+the grasp planner's thousands of queries, most of them failing after every seed, cost one numpy pass per
+iteration instead of one interpreter round trip per seed and iteration.
 """
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from bimanual_app.transforms import check_T
+
+from ._dls import ChainKinematics, descend
 
 __all__ = ["IKResult", "IKSolver"]
 
@@ -64,7 +71,6 @@ class IKSolver:
                  max_iter: int = 60, damping: float = 1e-6, far_damping: float = 1e-2, max_step: float = 0.5,
                  table_size: int = 10000, opening: float = 0.0, seed: int = 0):
         import pinocchio as pin
-        from scipy.spatial import cKDTree
 
         self.robot = robot
         self.link = link or robot.tcp_link or robot.ee_link
@@ -86,31 +92,30 @@ class IKSolver:
 
         self._dposv = lapack.dposv  # a 6x6 SPD solve: 1 us against np.linalg.solve's 4-6 us
         self._eye3, self._eye6 = np.eye(3), np.eye(6)
+        self._kin = ChainKinematics(self.model, self.fid)
 
         # nearest-pose seed table, and the arm's reach from the first joint to move the target in space
-        table_q = robot.random_q(table_size, rng=seed)
-        T = robot.fk_link(table_q, self.link, opening=opening)
-        self._table_q = table_q
-        self._table_pos = T[:, :3, 3].copy()
         self._rot_weight = 0.15  # metres per unit of rotation-matrix difference in the seed metric
-        self._pose_tree = cKDTree(np.concatenate([T[:, :3, 3], self._rot_weight * T[:, :3, :3].reshape(-1, 9)], 1))
-        self._pos_tree = cKDTree(T[:, :3, 3])
-        origins = robot.joint_placements(robot.full_q(robot.neutral()))[0, 1:, :3, 3]
-        # the shoulder: the first joint origin that the target's distance varies about
-        self._shoulder = origins[min(1, len(origins) - 1)]
-        self.reach = float(np.max(np.linalg.norm(self._table_pos - self._shoulder, axis=1)))
+        (self._table_q, self._table_pos, self._pose_tree, self._pos_tree, self._shoulder,
+         self.reach) = _seed_table(robot, self.link, table_size, opening, seed, self._rot_weight)
 
     # ------------------------------------------------------------------ one seed
-    def _descend(self, q: np.ndarray, target, position_only: bool) -> tuple[np.ndarray, float, float, int]:
-        """DLS from seed ``q`` (J,); returns (q, position error, rotation error, iterations)."""
+    def _descend_one(self, q: np.ndarray, target, position_only: bool, first: int = 1,
+                     history: list[float] | None = None) -> tuple[np.ndarray, float, float, int]:
+        """DLS from seed ``q`` (J,) to ``target`` (pinocchio SE3, or (3,) when ``position_only``); returns (q,
+        position error, rotation error, iterations). The iteration of ``_dls.descend`` for one lane, on
+        Pinocchio's C++ kinematics: one lane through numpy costs about five times as much per iteration (its
+        per-call overhead), many lanes far less per lane; ``_run_lanes`` picks by the number of lanes.
+        ``first`` and ``history`` continue a lane that ``_dls.descend`` started: the iteration to start at and
+        the errors (``|e_pos|^2 + 0.01 |e_rot|^2``) of the iterations before it."""
         pin, dposv = self._pin, self._dposv
         model, data, fid, LOCAL = self.model, self.data, self.fid, pin.LOCAL
         lower, upper = self.lower, self.upper
         eye = self._eye3 if position_only else self._eye6
         tp2, tr2 = self.tol_pos ** 2, self.tol_rot ** 2
-        history: list[float] = []
+        history = [] if history is None else list(history)
         ep2 = er2 = np.inf
-        for it in range(1, self.max_iter + 1):
+        for it in range(first, self.max_iter + 1):
             pin.computeJointJacobians(model, data, q)  # forward kinematics and joint Jacobians in one pass
             cur = pin.updateFramePlacement(model, data, fid)
             J = pin.getFrameJacobian(model, data, fid, LOCAL)
@@ -162,6 +167,8 @@ class IKSolver:
             q = qc
         return q, float(np.sqrt(ep2)), float(np.sqrt(er2)), it
 
+    BATCH_MIN = 16  # lanes from which one numpy pass beats a Pinocchio loop (measured: 12-16 on 2 loaded cores)
+
     # ------------------------------------------------------------------ public
     def solve(self, T_target: np.ndarray, q_current: np.ndarray | None = None, position_only: bool = False,
               n_solutions: int = 1, max_seeds: int = 16) -> IKResult:
@@ -170,43 +177,108 @@ class IKSolver:
         ``position_only`` uses only ``T_target[:3, 3]``. Stops after ``n_solutions`` distinct solutions or
         ``max_seeds`` seeds. Solutions lie within the joint limits.
         """
-        pin = self._pin
         T_target = np.asarray(T_target, dtype=np.float64)
         if T_target.shape != (4, 4) or not np.all(np.isfinite(T_target)):
             T_target = check_T("T_target", T_target)  # raises with the reason
-        if q_current is None:
-            q_current = self.robot.neutral()
-        q_current = np.asarray(q_current, dtype=np.float64).reshape(-1)
-        if q_current.shape != (self.robot.nq_arm,):
-            raise ValueError(f"q_current: expected shape ({self.robot.nq_arm},), got {q_current.shape}")
-        q_current = np.clip(q_current, self.lower, self.upper)
-        p = T_target[:3, 3]
-        empty = np.zeros((0, self.robot.nq_arm))
-        dist = float(np.linalg.norm(p - self._shoulder))
-        if dist > self.reach * 1.03 + 0.01:
-            return IKResult(False, None, empty, np.inf, np.inf, 0, 0,
-                            f"target {np.round(p, 3).tolist()} is {dist:.3f} m from the shoulder; "
-                            f"the arm reaches about {self.reach:.3f} m")
-        target = pin.SE3(T_target[:3, :3].copy(), p.copy())
-        goal = p if position_only else target
+        return self.solve_many(T_target[None], q_current, position_only, n_solutions, max_seeds)[0]
 
+    def solve_many(self, T_targets: np.ndarray, q_current: np.ndarray | None = None, position_only: bool = False,
+                   n_solutions: int = 1, max_seeds: int = 16) -> list[IKResult]:
+        """IK for each of ``T_targets`` (N, 4, 4), from ``q_current`` (J,) or one per target (N, J); one
+        ``IKResult`` per target, each the one ``solve`` gives for that target alone.
+
+        The seeds of all targets descend together (``_dls.descend``): first every target's current
+        configuration, then, for the targets that still lack solutions, all their remaining seeds at once
+        (the solutions are then taken in seed order, as one target's sequential search would).
+        """
+        T = np.asarray(T_targets, dtype=np.float64).reshape(-1, 4, 4)
+        n, J = len(T), self.robot.nq_arm
+        if not np.all(np.isfinite(T)):
+            raise ValueError("T_targets: non-finite values")
+        qc = self.robot.neutral() if q_current is None else np.asarray(q_current, dtype=np.float64)
+        if qc.shape == (J,):
+            qc = np.broadcast_to(qc, (n, J))
+        if qc.shape != (n, J):
+            raise ValueError(f"q_current: expected shape ({J},) or ({n}, {J}), got {np.shape(q_current)}")
+        qc = np.clip(qc, self.lower, self.upper)
+        dist = np.linalg.norm(T[:, :3, 3] - self._shoulder, axis=1)
+        far = dist > self.reach * 1.03 + 0.01
+        seeds: list[list[np.ndarray]] = [[qc[i]] for i in range(n)]
+        runs: list[list[tuple]] = [[] for _ in range(n)]  # per target: (q, ep, er, iterations) per seed tried
+        self._run_lanes([(i, 0) for i in range(n) if not far[i]], seeds, runs, T, position_only, n_solutions)
+        more = [i for i in range(n) if not far[i] and max_seeds > 1 and self._n_sols(runs[i]) < n_solutions]
+        if more:
+            p = T[more, :3, 3]
+            if position_only:
+                _, idx = self._pos_tree.query(p, k=self.n_near)
+            else:
+                feats = np.concatenate([p, self._rot_weight * T[more, :3, :3].reshape(-1, 9)], axis=1)
+                _, idx = self._pose_tree.query(feats, k=self.n_near)
+            idx = np.asarray(idx).reshape(len(more), -1)
+            lanes = []
+            for r, i in enumerate(more):
+                seeds[i] += [self._table_q[j] for j in idx[r]]
+                extra = max_seeds - len(seeds[i])
+                if extra > 0:  # beyond the table's nearest poses: uniform random seeds
+                    seeds[i] += list(self.robot.random_q(extra, rng=self._rng))
+                lanes += [(i, k) for k in range(1, min(max_seeds, len(seeds[i])))]
+            self._run_lanes(lanes, seeds, runs, T, position_only, n_solutions)
+        out = []
+        for i in range(n):
+            if far[i]:
+                p = T[i, :3, 3]
+                out.append(IKResult(False, None, np.zeros((0, J)), np.inf, np.inf, 0, 0,
+                                    f"target {np.round(p, 3).tolist()} is {dist[i]:.3f} m from the shoulder; "
+                                    f"the arm reaches about {self.reach:.3f} m"))
+            else:
+                out.append(self._collect(runs[i], qc[i], n_solutions))
+        return out
+
+    def _n_sols(self, runs: list[tuple]) -> int:
+        """Distinct solutions among a target's seed outcomes."""
+        sols: list[np.ndarray] = []
+        for q, ep, er, _ in runs:
+            if ep < self.tol_pos and er < self.tol_rot and not any(np.abs(q - s).max() < 1e-3 for s in sols):
+                sols.append(q)
+        return len(sols)
+
+    def _run_lanes(self, lanes: list[tuple[int, int]], seeds, runs, T: np.ndarray, position_only: bool,
+                   n_solutions: int) -> None:
+        """Descend every (target, seed index) lane at once and append each lane's outcome to ``runs``."""
+        if not lanes:
+            return
+        if len(lanes) < self.BATCH_MIN:
+            for i, k in lanes:  # in seed order; a target stops at its n_solutions, as a sequential search does
+                if self._n_sols(runs[i]) >= n_solutions:
+                    continue
+                Ti = T[i]
+                goal = Ti[:3, 3].copy() if position_only else self._pin.SE3(Ti[:3, :3].copy(), Ti[:3, 3].copy())
+                runs[i].append(self._descend_one(seeds[i][k].copy(), goal, position_only))
+            return
+        Q0 = np.stack([seeds[i][k] for i, k in lanes])
+        Tl = T[[i for i, _ in lanes]]
+
+        def tail(lane: int, q: np.ndarray, first: int, history: np.ndarray):
+            Ti = Tl[lane]
+            goal = Ti[:3, 3].copy() if position_only else self._pin.SE3(Ti[:3, :3].copy(), Ti[:3, 3].copy())
+            return self._descend_one(q.copy(), goal, position_only, first, history.tolist())
+
+        Q, ep, er, it = descend(self._kin, Q0, Tl, self.lower, self.upper, position_only, self.tol_pos, self.tol_rot,
+                                self.max_iter, self.damping, self.far_damping, self.max_step,
+                                tail=tail, tail_lanes=self.BATCH_MIN // 2)
+        for r, (i, _) in enumerate(lanes):
+            runs[i].append((Q[r], float(ep[r]), float(er[r]), int(it[r])))
+
+    def _collect(self, runs: list[tuple], q_current: np.ndarray, n_solutions: int) -> IKResult:
+        """One target's result from its seeds' outcomes, in seed order, stopping at ``n_solutions``."""
         sols: list[np.ndarray] = []
         errs: list[tuple[float, float]] = []
         best = (np.inf, np.inf, None)
-        iters = 0
-        seeds: list[np.ndarray] = [q_current]
-        k = 0
-        while k < max_seeds and len(sols) < n_solutions:
-            if k == len(seeds) == 1:  # nearest-pose seeds, only when the current configuration did not do
-                if position_only:
-                    _, idx = self._pos_tree.query(p, k=self.n_near)
-                else:
-                    _, idx = self._pose_tree.query(
-                        np.concatenate([p, self._rot_weight * T_target[:3, :3].reshape(-1)]), k=self.n_near)
-                seeds += [self._table_q[i] for i in np.atleast_1d(idx)]
-            seed = seeds[k] if k < len(seeds) else self.robot.random_q(1, rng=self._rng)[0]
+        iters = k = 0
+        for q, ep, er, it in runs:
+            if len(sols) >= n_solutions:
+                break
             k += 1
-            q, ep, er, it = self._descend(seed.copy(), goal, position_only)
             iters += it
             if ep < self.tol_pos and er < self.tol_rot:
                 if not any(np.abs(q - s).max() < 1e-3 for s in sols):
@@ -214,8 +286,9 @@ class IKSolver:
                     errs.append((ep, er))
             elif ep + 0.1 * er < best[0] + 0.1 * best[1]:
                 best = (ep, er, q)
+        J = self.robot.nq_arm
         if not sols:
-            return IKResult(False, None, empty, best[0], best[1], iters, k,
+            return IKResult(False, None, np.zeros((0, J)), best[0], best[1], iters, k,
                             f"no IK solution within the joint limits after {k} seeds "
                             f"(best: {best[0] * 1e3:.1f} mm, {np.degrees(best[1]):.1f} deg off)",
                             best_attempt=best[2])
@@ -233,3 +306,27 @@ class IKSolver:
             return ep, 0.0
         R = T[:3, :3].T @ T_target[:3, :3]
         return ep, float(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)))
+
+
+_TABLES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _seed_table(robot, link: str, size: int, opening: float, seed: int, rot_weight: float) -> tuple:
+    """(table_q (size, J), tool positions (size, 3), pose KD-tree, position KD-tree, shoulder (3,), reach m): FK
+    samples of the arm for nearest-pose seeds, built once per robot model and parameters in a process (every
+    IKSolver of the grasp and task stages of one ``bijcr run`` shares them)."""
+    from scipy.spatial import cKDTree
+
+    per_robot = _TABLES.setdefault(robot, {})
+    key = (link, int(size), float(opening), int(seed), float(rot_weight))
+    if key not in per_robot:
+        table_q = robot.random_q(size, rng=seed)
+        T = robot.fk_link(table_q, link, opening=opening)
+        pos = T[:, :3, 3].copy()
+        pose_tree = cKDTree(np.concatenate([pos, rot_weight * T[:, :3, :3].reshape(-1, 9)], 1))
+        origins = robot.joint_placements(robot.full_q(robot.neutral()))[0, 1:, :3, 3]
+        # the shoulder: the first joint origin that the target's distance varies about
+        shoulder = origins[min(1, len(origins) - 1)]
+        reach = float(np.max(np.linalg.norm(pos - shoulder, axis=1)))
+        per_robot[key] = (table_q, pos, pose_tree, cKDTree(pos), shoulder, reach)
+    return per_robot[key]

@@ -270,7 +270,7 @@ def load_robot(name_or_urdf_path: str | Path, base_dir: str | Path | None = None
     key = str(name_or_urdf_path).strip()
     if key in REGISTRY:
         spec = REGISTRY[key]
-        return RobotModel(spec.name, spec.urdf, ee_link=ee_link, spec=spec)
+        return _cached(spec.name, Path(spec.urdf), ee_link, spec)
     path = Path(key).expanduser()
     looks_like_path = path.suffix.lower() in (".urdf", ".xml") or "/" in key or "\\" in key
     if not looks_like_path:
@@ -285,4 +285,18 @@ def load_robot(name_or_urdf_path: str | Path, base_dir: str | Path | None = None
             Problem(str(path), "robot", "URDF file not found",
                     "give a path to an existing URDF (relative paths are relative to the scene folder)")
         )
-    return RobotModel(path.stem, path.resolve(), ee_link=ee_link, spec=None)
+    return _cached(path.stem, path.resolve(), ee_link, None)
+
+
+_MODELS: dict[tuple, RobotModel] = {}
+
+
+def _cached(name: str, urdf: Path, ee_link: str | None, spec: RobotSpec | None) -> RobotModel:
+    """One ``RobotModel`` per (URDF file and its modification time, tool link) in a process: the stages of
+    ``bijcr run`` (grasp, both tasks) and the models built on it (IK tables, collision worlds) share it. A
+    RobotModel is not changed after it is built."""
+    key = (name, str(urdf), urdf.stat().st_mtime_ns if urdf.is_file() else None, ee_link, spec is not None)
+    model = _MODELS.get(key)
+    if model is None:
+        model = _MODELS[key] = RobotModel(name, urdf, ee_link=ee_link, spec=spec)
+    return model
