@@ -17,7 +17,7 @@ CLI: ``bijcr calibrate SCENE --out DIR [--method absolute|paper|paper-norefine]`
 
 from __future__ import annotations
 
-import importlib
+from bimanual_app.lazy import lazy_exports
 
 # name -> private module; imported on first use (PEP 562) so that importing ``calibration.cli`` for
 # ``bijcr --help`` does not pull in numpy/scipy.
@@ -32,13 +32,4 @@ _EXPORTS = {
 __all__ = list(_EXPORTS)
 
 
-def __getattr__(name: str):
-    if name in _EXPORTS:
-        value = getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module 'calibration' has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted(list(globals()) + __all__)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

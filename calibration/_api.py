@@ -136,21 +136,14 @@ def _refine_with_point_maps(scene, result: CalibrationResult, options: Calibrati
     from bimanual_app.transforms import inv_T, mean_T
 
     from ._closed_form import pair_motions, scaled
-    from ._cloud import auto_conf_threshold
-    from ._pointmap_refine import camera_frame_views, refine_with_point_maps
+    from ._pointmap_refine import refine_with_point_maps
     from ._solve import ARM_NAMES, _residual_summary
 
     opts = options or CalibrationOptions()
     t0 = time.perf_counter()
     rec = scene.reconstruction
     rows, arms, E = _views_of(scene, result)
-    keep = np.all(np.isfinite(rec.pts3d[rows]), axis=-1)
-    if rec.conf is not None:
-        conf = rec.conf[rows]
-        keep &= (conf > auto_conf_threshold(rec.conf)) & (conf > 0)
-    for arm in scene.arms:  # each arm's own fingers move with the camera: not scene points
-        keep[arms == arm.index] &= ~_rig_pixels(scene, result, arm)[None]
-    views = camera_frame_views(rec.pts3d[rows], rec.T_w_c[rows], keep, arms, E)
+    views = _map_views(scene, result, rows, arms, E)
     before = {"T_e1_c1": result.T_e1_c1, "T_e2_c2": result.T_e2_c2, "scale": result.scale,
               "T_b1_b2": result.T_b1_b2, "T_b1_w": result.T_b1_w, "T_b2_w": result.T_b2_w,
               "residuals": result.residuals}

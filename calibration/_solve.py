@@ -308,6 +308,145 @@ def _sub(E, C, kept):
     return [e[k] for e, k in zip(E, kept)], [c[k] for c, k in zip(C, kept)]
 
 
+class _Views:
+    """The views each arm still uses (``kept``) and the ones dropped so far, with the reason for each."""
+
+    def __init__(self, N: list[int], images: list | None):
+        self.N = N
+        self.kept = [np.arange(n) for n in N]
+        self.dropped: list[list[dict]] = [[] for _ in N]
+        self.images = images
+
+    def drop(self, m: int, v: int, reason: str) -> None:
+        self.kept[m] = self.kept[m][self.kept[m] != v]
+        self.dropped[m].append({"index": int(v), "image": self.images[m][v] if self.images else None,
+                                "reason": reason})
+
+
+def _screen_angles(all_motions: list, views: _Views, opts: CalibrationOptions) -> None:
+    """Stage 1: drop views whose end-effector and camera rotation angles disagree (no fit needed)."""
+    for m in range(len(views.N)):
+        idx_views = views.kept[m].copy()
+        score, flag = angle_screen(all_motions[m], idx_views)
+        budget = max(min(int(np.floor(opts.max_outlier_fraction * views.N[m])), len(idx_views) - MIN_VIEWS), 0)
+        for idx in np.argsort(-score)[:budget]:
+            if flag[idx]:
+                views.drop(m, int(idx_views[idx]), f"end-effector and camera rotation angles disagree by "
+                                                   f"{score[idx]:.1f} deg (median over its pairs)")
+
+
+def _test_left_out(E, C, views: _Views, st, left_out: list, given_sigma, opts: CalibrationOptions):
+    """Test each view the least-median start left out against a fit without it; drop it if it is an outlier.
+
+    With few views a robust fit over all of them can spread one bad view's error over the good ones, so the
+    left-out view is judged against the start fitted without it. Returns the state to continue from.
+    """
+    if not any(v is not None for v in left_out):
+        return st
+    own = [k if v is None else k[k != v] for k, v in zip(views.kept, left_out)]
+    Eo, Co = _sub(E, C, own)
+    st_own, own_info = absm.refine_absolute(Eo, Co, st, sigma=given_sigma, robust=False)
+    for m, v in enumerate(left_out):
+        if v is None:
+            continue
+        d = absm.deleted_score(Eo, Co, st_own, own_info["sigma"], E[m][v], C[m][v], m)
+        rot, trans = view_residuals(E[m][v:v + 1], C[m][v:v + 1], st_own.X[m], st_own.W[m], st_own.scale)
+        r, t = float(np.linalg.norm(rot)), float(np.linalg.norm(trans))
+        # conservative: the degrees of freedom of this arm's own views (with 3 of them the prediction
+        # of a fourth is the weakest link, and a good view must not be dropped from so few)
+        thr = effective_threshold(opts.outlier_threshold, 6 * len(own[m]) - 12)
+        if d > thr and (r > np.deg2rad(opts.outlier_min_rot_deg) or t > opts.outlier_min_trans_mm / 1000):
+            views.drop(m, v, f"residual {np.rad2deg(r):.1f} deg / {1000 * t:.0f} mm ({d:.1f} sigma, prediction "
+                             "error included) against a fit of the other views (least-median start)")
+            st = st_own
+    return st
+
+
+def _drop_worst_views(E, C, views: _Views, st, given_sigma, opts: CalibrationOptions):
+    """Stage 2: robust absolute fits, dropping the worst view while it is an outlier. Returns ``(st, abs_info)``."""
+    K = len(E)
+    while True:
+        Es, Cs = _sub(E, C, views.kept)
+        st, abs_info = absm.refine_absolute(Es, Cs, st, sigma=given_sigma, robust=True, f_scale=opts.robust_scale)
+        sig = abs_info["sigma"]
+        scores, _ = absm.studentized_scores(Es, Cs, st, sig)
+        rot, trans = absm.raw_residuals(Es, Cs, st)
+        res = [np.stack([np.linalg.norm(r, axis=1), np.linalg.norm(t, axis=1)], axis=1) for r, t in zip(rot, trans)]
+        thr = effective_threshold(opts.outlier_threshold, 6 * sum(len(k) for k in views.kept) - (12 * K + 1))
+        w = worst_view(scores, res, views.kept, views.N, thr, np.deg2rad(opts.outlier_min_rot_deg),
+                       opts.outlier_min_trans_mm / 1000, MIN_VIEWS, opts.max_outlier_fraction)
+        if w is None:
+            return st, abs_info
+        m, v, d = w
+        rot, trans = view_residuals(E[m][v:v + 1], C[m][v:v + 1], st.X[m], st.W[m], st.scale)
+        views.drop(m, v, f"residual {np.rad2deg(np.linalg.norm(rot)):.1f} deg / "
+                         f"{1000 * np.linalg.norm(trans):.0f} mm ({d:.1f} sigma) against the robust fit of the other views")
+
+
+def _refine(method: str, Es, Cs, pms, st, abs_info: dict, reject: bool, given_sigma, opts: CalibrationOptions,
+            info: dict):
+    """The method's refinement on the kept views. Returns ``(st, sigma)``; sigma is None when not estimated."""
+    if method == "absolute":
+        if not reject or not opts.robust:
+            st, abs_info = absm.refine_absolute(Es, Cs, st, sigma=given_sigma, robust=opts.robust,
+                                                f_scale=opts.robust_scale)
+        info.update({"absolute_nfev": abs_info["nfev"], "absolute_passes": abs_info["passes"]})
+        return st, abs_info["sigma"]
+    if method == "paper":
+        from ._paper_refine import refine_paper
+
+        X, s, pinfo = refine_paper(pms, st.X, st.scale, alpha=opts.alpha, max_iter=opts.refine_iterations)
+        W = [average_base_from_world(e, x, c, s) for e, x, c in zip(Es, X, Cs)]
+        info.update(pinfo)
+        return absm.AbsoluteState(X, W, s), given_sigma
+    return st, given_sigma
+
+
+def _uncertainty_of(E, C, views: _Views, names, method, opts: CalibrationOptions, st, sigma, info: dict,
+                    warnings: list, seen: set) -> dict:
+    """1-sigma uncertainty of every output (``opts.uncertainty``); flags an ill-conditioned problem."""
+    if opts.uncertainty == "none":
+        return {}
+    K = len(E)
+    Es, Cs = _sub(E, C, views.kept)
+    cov, cond, vf = absm.covariance(Es, Cs, st, sigma)
+    info.update({"condition_number": cond, "variance_factor": vf})
+    if cond > COND_ERROR:
+        _handle_findings([Finding("both", "error", "ill_conditioned",
+                                  f"the calibration is not determined by these views (condition number {cond:.1e})",
+                                  "add views rotated 20-40 deg about different axes and moved 10-20 cm apart")],
+                         opts, warnings, seen)
+    he_names = ("T_e1_c1", "T_e2_c2") if K == 2 else ("T_e_c",)
+    if opts.uncertainty == "jacobian":
+        unc = from_covariance(st, cov, he_names)
+        unc["estimator"] = "jacobian"
+    else:
+        unc = _jackknife(E, C, views.kept, names, method, opts, st, he_names)
+        unc["estimator"] = "jackknife"
+    unc["note"] = "1-sigma"
+    return unc
+
+
+def _result_warnings(views: _Views, names, unc: dict, opts: CalibrationOptions, warnings: list) -> None:
+    """Append the warnings about dropped views and a poorly determined scale."""
+    for m, dropped in enumerate(views.dropped):
+        if dropped:
+            warnings.append(f"{names[m]} arm: dropped {len(dropped)} outlier view(s): "
+                            + ", ".join(str(d["image"] if d["image"] is not None else d["index"]) for d in dropped))
+    if opts.uncertainty != "none" and "scale" in unc and unc["scale"]["percent"] > 10:
+        warnings.append(f"the scale is poorly determined (+-{unc['scale']['percent']:.0f}%): add views that move the "
+                        "cameras 10-20 cm apart")
+
+
+def _start(E, C, views: _Views, motions, reject: bool, given_sigma, opts: CalibrationOptions):
+    """The start of the refinement: the least-median closed form (its left-out views tested) when outliers are
+    rejected, else the closed form on all views. Returns ``(st, info)``."""
+    if not reject:
+        return _closed_form(E, C, views.kept, motions, opts)
+    st, info, left_out = _robust_start(E, C, views.kept, motions, opts)
+    return _test_left_out(E, C, views, st, left_out, given_sigma, opts), info
+
+
 def _solve(E: list, C: list, names: tuple, method: str, opts: CalibrationOptions, images: list | None) -> dict:
     """Core over K arms (1 or 2) sharing one scale. Returns a dict of everything the result needs."""
     if method not in METHODS:
@@ -318,124 +457,38 @@ def _solve(E: list, C: list, names: tuple, method: str, opts: CalibrationOptions
     seen: set = set()
     consecutive = opts.pairs == "consecutive"
     motions = [pair_motions(e, c, consecutive=consecutive) for e, c in zip(E, C)]
-    all_motions = motions if not consecutive else [pair_motions(e, c) for e, c in zip(E, C)]
-    N = [len(e) for e in E]
-    kept = [np.arange(n) for n in N]
-    dropped: list[list[dict]] = [[] for _ in range(K)]
+    views = _Views([len(e) for e in E], images)
     reject = opts.reject_outliers if opts.reject_outliers is not None else method == "absolute"
     given_sigma = None if opts.noise_rot_deg is None else (np.deg2rad(opts.noise_rot_deg), opts.noise_trans_mm / 1000)
 
-    def drop(m, v, reason):
-        kept[m] = kept[m][kept[m] != v]
-        dropped[m].append({"index": int(v), "image": images[m][v] if images else None, "reason": reason})
+    def check_capture():
+        _handle_findings(analyse_capture({names[m]: E[m][views.kept[m]] for m in range(K)}), opts, warnings, seen)
 
-    if reject:  # stage 1: the rotation-angle invariant (no fit needed)
-        for m in range(K):
-            views = kept[m].copy()
-            score, flag = angle_screen(all_motions[m], views)
-            budget = max(min(int(np.floor(opts.max_outlier_fraction * N[m])), len(views) - MIN_VIEWS), 0)
-            for idx in np.argsort(-score)[:budget]:
-                if flag[idx]:
-                    drop(m, int(views[idx]), f"end-effector and camera rotation angles disagree by {score[idx]:.1f} deg "
-                                             "(median over its pairs)")
-    _handle_findings(analyse_capture({names[m]: E[m][kept[m]] for m in range(K)}), opts, warnings, seen)
     if reject:
-        st, info, left_out = _robust_start(E, C, kept, motions, opts)
-        # a view the least-median start left out is tested against that start (fitted without it) first: with
-        # few views a robust fit over all of them can spread one bad view's error over the good ones
-        if any(v is not None for v in left_out):
-            own = [k if v is None else k[k != v] for k, v in zip(kept, left_out)]
-            Eo, Co = _sub(E, C, own)
-            st_own, own_info = absm.refine_absolute(Eo, Co, st, sigma=given_sigma, robust=False)
-            for m, v in enumerate(left_out):
-                if v is None:
-                    continue
-                d = absm.deleted_score(Eo, Co, st_own, own_info["sigma"], E[m][v], C[m][v], m)
-                rot, trans = view_residuals(E[m][v:v + 1], C[m][v:v + 1], st_own.X[m], st_own.W[m], st_own.scale)
-                r, t = float(np.linalg.norm(rot)), float(np.linalg.norm(trans))
-                # conservative: the degrees of freedom of this arm's own views (with 3 of them the prediction
-                # of a fourth is the weakest link, and a good view must not be dropped from so few)
-                thr = effective_threshold(opts.outlier_threshold, 6 * len(own[m]) - 12)
-                if d > thr and (r > np.deg2rad(opts.outlier_min_rot_deg)
-                                                   or t > opts.outlier_min_trans_mm / 1000):
-                    drop(m, v, f"residual {np.rad2deg(r):.1f} deg / {1000 * t:.0f} mm ({d:.1f} sigma, prediction "
-                               "error included) against a fit of the other views (least-median start)")
-                    st = st_own
-    else:
-        st, info = _closed_form(E, C, kept, motions, opts)
+        _screen_angles(motions if not consecutive else [pair_motions(e, c) for e, c in zip(E, C)], views, opts)
+    check_capture()
+    st, info = _start(E, C, views, motions, reject, given_sigma, opts)
     t_closed = time.perf_counter() - t0
-    sigma = given_sigma
     abs_info: dict = {}
-    if reject:  # stage 2: robust absolute fits, drop the worst view while it is an outlier
-        while True:
-            Es, Cs = _sub(E, C, kept)
-            st, abs_info = absm.refine_absolute(Es, Cs, st, sigma=given_sigma, robust=True, f_scale=opts.robust_scale)
-            sig = abs_info["sigma"]
-            scores, _ = absm.studentized_scores(Es, Cs, st, sig)
-            rot, trans = absm.raw_residuals(Es, Cs, st)
-            res = [np.stack([np.linalg.norm(r, axis=1), np.linalg.norm(t, axis=1)], axis=1) for r, t in zip(rot, trans)]
-            thr = effective_threshold(opts.outlier_threshold, 6 * sum(len(k) for k in kept) - (12 * K + 1))
-            w = worst_view(scores, res, kept, N, thr, np.deg2rad(opts.outlier_min_rot_deg),
-                           opts.outlier_min_trans_mm / 1000, MIN_VIEWS, opts.max_outlier_fraction)
-            if w is None:
-                break
-            m, v, d = w
-            rot, trans = view_residuals(E[m][v:v + 1], C[m][v:v + 1], st.X[m], st.W[m], st.scale)
-            drop(m, v, f"residual {np.rad2deg(np.linalg.norm(rot)):.1f} deg / {1000 * np.linalg.norm(trans):.0f} mm "
-                       f"({d:.1f} sigma) against the robust fit of the other views")
-        _handle_findings(analyse_capture({names[m]: E[m][kept[m]] for m in range(K)}), opts, warnings, seen)
+    if reject:
+        st, abs_info = _drop_worst_views(E, C, views, st, given_sigma, opts)
+        check_capture()
         if method != "absolute":  # the paper's methods restart from the closed form on the kept views
-            st, info = _closed_form(E, C, kept, motions, opts)
-    Es, Cs = _sub(E, C, kept)
-    pms = [pm.subset(k) for pm, k in zip(motions, kept)]
-    if method == "absolute":
-        if not reject or not opts.robust:
-            st, abs_info = absm.refine_absolute(Es, Cs, st, sigma=given_sigma, robust=opts.robust,
-                                                f_scale=opts.robust_scale)
-        sigma = abs_info["sigma"]
-        info.update({"absolute_nfev": abs_info["nfev"], "absolute_passes": abs_info["passes"]})
-    elif method == "paper":
-        from ._paper_refine import refine_paper
-
-        X, s, pinfo = refine_paper(pms, st.X, st.scale, alpha=opts.alpha, max_iter=opts.refine_iterations)
-        W = [average_base_from_world(e, x, c, s) for e, x, c in zip(Es, X, Cs)]
-        st = absm.AbsoluteState(X, W, s)
-        info.update(pinfo)
+            st, info = _closed_form(E, C, views.kept, motions, opts)
+    Es, Cs = _sub(E, C, views.kept)
+    pms = [pm.subset(k) for pm, k in zip(motions, views.kept)]
+    st, sigma = _refine(method, Es, Cs, pms, st, abs_info, reject, given_sigma, opts, info)
     if sigma is None:
         sigma = absm.estimate_noise(*absm.raw_residuals(Es, Cs, st), n_params=12 * K + 1)
     t_solve = time.perf_counter() - t0
-    # uncertainty
-    unc: dict = {}
-    if opts.uncertainty != "none":
-        cov, cond, vf = absm.covariance(Es, Cs, st, sigma)
-        info.update({"condition_number": cond, "variance_factor": vf})
-        if cond > COND_ERROR:
-            _handle_findings([Finding("both", "error", "ill_conditioned",
-                                      f"the calibration is not determined by these views (condition number {cond:.1e})",
-                                      "add views rotated 20-40 deg about different axes and moved 10-20 cm apart")],
-                             opts, warnings, seen)
-        he_names = ("T_e1_c1", "T_e2_c2") if K == 2 else ("T_e_c",)
-        if opts.uncertainty == "jacobian":
-            unc = from_covariance(st, cov, he_names)
-            unc["estimator"] = "jacobian"
-        else:
-            unc = _jackknife(E, C, kept, names, method, opts, st, he_names)
-            unc["estimator"] = "jackknife"
-        unc["note"] = "1-sigma"
-    # residuals
-    res = _residual_summary(E, C, kept, pms, st, names)
+    unc = _uncertainty_of(E, C, views, names, method, opts, st, sigma, info, warnings, seen)
+    res = _residual_summary(E, C, views.kept, pms, st, names)
     noise = {"rotation_deg": float(np.rad2deg(sigma[0])), "translation_mm": float(sigma[1] * 1000),
              "source": "given" if given_sigma is not None else "estimated from the residuals"}
-    for m in range(K):
-        if dropped[m]:
-            warnings.append(f"{names[m]} arm: dropped {len(dropped[m])} outlier view(s): "
-                            + ", ".join(str(d["image"] if d["image"] is not None else d["index"]) for d in dropped[m]))
-    if opts.uncertainty != "none" and "scale" in unc and unc["scale"]["percent"] > 10:
-        warnings.append(f"the scale is poorly determined (+-{unc['scale']['percent']:.0f}%): add views that move the "
-                        "cameras 10-20 cm apart")
+    _result_warnings(views, names, unc, opts, warnings)
     info.update({"time_closed_form_s": t_closed, "time_solve_s": t_solve, "time_total_s": time.perf_counter() - t0})
-    return {"state": st, "kept": kept, "dropped": dropped, "residuals": res, "uncertainty": unc, "noise": noise,
-            "warnings": warnings, "info": info}
+    return {"state": st, "kept": views.kept, "dropped": views.dropped, "residuals": res, "uncertainty": unc,
+            "noise": noise, "warnings": warnings, "info": info}
 
 
 def _jackknife(E, C, kept, names, method, opts, st, he_names) -> dict:

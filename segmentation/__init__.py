@@ -7,6 +7,9 @@ Public API:
     SegmentResult: labels (N,) int32 (-1 table/background, 0..K-1 objects), table, objects, stats, timings.
     ObjectSummary: per object: points, centroid, table-aligned oriented box (center, rotation, extents).
     TablePlane: the fitted table.
+    fit_plane(points, threshold, up=None, near=None, level_only=False, ...) -> PlaneFit | None: the robust
+        plane fitter the table uses (also the physics preview's table and the plane sweep's dominant plane);
+        uniform_sample(points, n_max, seed=0, cell=0.01): one point per voxel, a plane's support its area.
     MaskViews: per-image masks carried into b1 through a scene's point maps (``mask_ids=`` of segment).
     read_cloud(path) -> (points, colors, normals); write_segments(out_dir, result, points, source)
     read_calibration(path) -> (T_b1_w, scale, T_b1_b2 or None)
@@ -18,9 +21,11 @@ from ._io import read_cloud, write_segments
 from ._masks import MaskViews, read_calibration
 from ._params import SegmentParams
 from ._pipeline import SegmentResult, segment
+from ._plane import PlaneFit, fit_plane, uniform_sample
 from ._stage import SegmentStage, segment_stage
 from ._summary import ObjectSummary
 from ._table import TablePlane
 
 __all__ = ["segment", "SegmentParams", "SegmentResult", "ObjectSummary", "TablePlane", "MaskViews",
+           "fit_plane", "PlaneFit", "uniform_sample",
            "read_cloud", "write_segments", "read_calibration", "segment_stage", "SegmentStage"]

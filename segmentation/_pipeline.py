@@ -148,6 +148,124 @@ def _footprint_lengths(region: np.ndarray, xyz: np.ndarray, R: int) -> np.ndarra
     return out
 
 
+def _base_axes(table: TablePlane, bases) -> np.ndarray:
+    """(B, 3) the robot bases in the table frame; empty when none are given."""
+    if bases is None or not len(bases):
+        return np.zeros((0, 3))
+    return table.to_table(np.asarray(bases, dtype=np.float64).reshape(-1, 3))
+
+
+def _candidates(pt: np.ndarray, table: TablePlane, p: SegmentParams, bases) -> np.ndarray:
+    """Indices of the points (N, 3, table frame) above the table band, over the table and off the bases."""
+    h = pt[:, 2]
+    cand = (h > table.min_height) & (h < p.max_height)
+    cand &= on_table_mask(table, pt, p.table_margin)
+    if p.base_radius > 0:
+        for b in _base_axes(table, bases):
+            cand &= np.hypot(pt[:, 0] - b[0], pt[:, 1] - b[1]) > p.base_radius
+    return np.flatnonzero(cand)
+
+
+def _auto_voxelize(cpts: np.ndarray, ccol, p: SegmentParams):
+    """Voxelize the candidates; without a fixed ``p.voxel``, grow the voxel until the graph is small enough
+    (surfaces: about 1/v^2 voxels). Returns ``(vox, voxel)``."""
+    voxel = p.voxel or DEFAULT_VOXEL
+    vox = voxelize(cpts, voxel, ccol)
+    for _ in range(6):
+        if p.voxel is not None or len(vox) <= p.max_voxels:
+            break
+        voxel *= float(np.sqrt(len(vox) / p.max_voxels)) * 1.05
+        vox = voxelize(cpts, voxel, ccol)
+    return vox, voxel
+
+
+def _given_normals(vn: np.ndarray, nrm: np.ndarray, cidx: np.ndarray, vox, table: TablePlane) -> None:
+    """Replace the voxels' estimated normals (V, 3) by the mean of the given point normals (where nonzero)."""
+    R_t = table.T_b1_t[:3, :3]
+    nv_sum = np.stack([np.bincount(vox.inverse, nrm[cidx] @ R_t[:, k], len(vox)) for k in range(3)], 1)
+    ok = np.linalg.norm(nv_sum, axis=1) > 1e-9
+    vn[ok] = nv_sum[ok] / np.linalg.norm(nv_sum[ok], axis=1, keepdims=True)
+
+
+def _mask_voxels(mask_ids, cidx: np.ndarray, vox, table: TablePlane):
+    """(V, views) mask id per voxel from per-point ids or a ``lookup`` object; None without masks."""
+    if mask_ids is None:
+        return None
+    if isinstance(mask_ids, np.ndarray):
+        return _voxel_masks(mask_ids[cidx], vox.inverse, len(vox))
+    xyz_b1 = vox.xyz @ table.T_b1_t[:3, :3].T + table.T_b1_t[:3, 3]
+    return np.asarray(mask_ids.lookup(xyz_b1), dtype=np.int64)
+
+
+def _keep_regions(region: np.ndarray, xyz: np.ndarray, p: SegmentParams, table: TablePlane, bases,
+                  min_top: float) -> np.ndarray:
+    """(R,) which regions are objects: enough voxels, tall and long enough, not a base plate's remains."""
+    R = int(region.max()) + 1
+    nvox = np.bincount(region, minlength=R)
+    top = np.zeros(R)
+    np.maximum.at(top, region, xyz[:, 2])
+    keep = (nvox >= p.min_object_voxels) & (top >= min_top)
+    keep &= _footprint_lengths(region, xyz, R) >= p.min_object_size
+    if p.base_radius > 0 and bases is not None and len(bases):
+        # what is left of a base plate's corners: regions lying almost all near a base
+        near = np.zeros(len(xyz), bool)
+        for b in _base_axes(table, bases):
+            near |= np.hypot(xyz[:, 0] - b[0], xyz[:, 1] - b[1]) < p.base_radius + BASE_FRINGE
+        keep &= np.bincount(region, near.astype(float), R) < 0.8 * nvox
+    return keep
+
+
+def _object_ids(region: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """(R,) label of each region: objects ordered by size (largest first, stable, readable ids), -1 dropped."""
+    nvox = np.bincount(region, minlength=len(keep))
+    kept = np.flatnonzero(keep)
+    kept = kept[np.argsort(-nvox[kept], kind="stable")]
+    remap = np.full(len(keep), -1, np.int32)
+    remap[kept] = np.arange(len(kept), dtype=np.int32)
+    return remap
+
+
+def _regions(vox, vn, var, edges, mask_vox, table: TablePlane, p: SegmentParams, voxel: float, spacing: float,
+             stats: dict, T: dict, _debug: dict | None) -> np.ndarray:
+    """Voxels -> patches -> oriented normals -> contracted region graph -> (V,) region per voxel."""
+    t2 = time.perf_counter()
+    cell = p.patch_cell or max(4.0 * voxel, 3.0 * spacing)
+    patches = make_patches(vox.xyz, vn, var, edges, cell, p.patch_normal_deg, vox.rgb,
+                           colour_tol=p.voxel_colour_tol, mask_vox=mask_vox)
+    pairs, weight = patch_adjacency(patches.of_voxel, edges)
+    T["patches"] += time.perf_counter() - t2
+    t3 = time.perf_counter()
+    ray_cell = max(2.0 * voxel, 1.5 * spacing, 0.008)
+    pn = orient_patches(patches.xyz, patches.normal, vox.xyz, ray_cell, pairs)
+    patches.normal = pn
+    T["orient"] = time.perf_counter() - t3
+    t4 = time.perf_counter()
+    score, flat = pair_geometry(patches.xyz, pn, pairs, p, step_min=max(1.5 * voxel, 4.0 * table.sigma))
+    hist = None if mask_vox is None else _patch_mask_hist(mask_vox, patches.of_voxel, len(patches))
+    G = RegionGraph(patches.nvox, patches.hist, hist, pairs, weight, score, flat, p)
+    merges = G.contract(p.merge_threshold)
+    if _debug is not None:  # intermediate results for development and tests
+        _debug.update(vox=vox, patches=patches, pairs=pairs, weight=weight, score=score,
+                      contracted=G.labels()[patches.of_voxel], graph=G)
+    parts = attach_parts(G, patches.of_voxel, vox.xyz, p)
+    region = G.labels()[patches.of_voxel]  # (V,) region per voxel
+    if _debug is not None:
+        _debug["attached"] = region
+    region = dissolve_slivers(region, vox.xyz, SLIVER_WIDTH, p.min_object_voxels)
+    region, split = split_by_tops(region, vox.xyz, vn, edges, p)
+    region, shed = shed_neighbour_walls(region, vox.xyz, vn, edges, p, _min_top(table, p))
+    T["graph"] = time.perf_counter() - t4
+    stats.update(patches=len(patches), patch_edges=int(len(pairs)), merges=merges, attached=parts, split_by_tops=split,
+                 walls_shed=shed)
+    return region
+
+
+def _min_top(table: TablePlane, p: SegmentParams) -> float:
+    """Least top height of an object: it rises clearly above the table band (noisy clouds hold sheets of table
+    a little above it)."""
+    return max(p.min_object_height, table.min_height + max(0.008, 2.5 * table.sigma))
+
+
 def segment(points, colors=None, normals=None, mask_ids=None, params: SegmentParams | None = None,
             bases=None, source: str = "points", progress: bool = False, _debug: dict | None = None) -> SegmentResult:
     """Segment a metric table-top cloud in b1 into the table and objects.
@@ -174,116 +292,42 @@ def segment(points, colors=None, normals=None, mask_ids=None, params: SegmentPar
     T = {}
     t0 = time.perf_counter()
     pts, col, nrm, mask_ids = _check_inputs(points, colors, normals, mask_ids, source)
-    N = len(pts)
     check_metric(pts, source)
     table = fit_table(pts, p, source)
     T["table"] = time.perf_counter() - t0
     _log(progress, f"table: normal {np.round(table.normal, 3).tolist()}, {table.extent[0]:.2f} x {table.extent[1]:.2f} m, "
          f"noise {1000 * table.sigma:.1f} mm ({T['table']:.2f} s)")
-
     t1 = time.perf_counter()
     pt = table.to_table(pts)
-    h = pt[:, 2]
-    cand = (h > table.min_height) & (h < p.max_height)
-    cand &= on_table_mask(table, pt, p.table_margin)
-    if bases is not None and len(bases) and p.base_radius > 0:
-        for b in table.to_table(np.asarray(bases, dtype=np.float64).reshape(-1, 3)):
-            cand &= np.hypot(pt[:, 0] - b[0], pt[:, 1] - b[1]) > p.base_radius
-    cidx = np.flatnonzero(cand)
-    labels = np.full(N, -1, np.int32)
-    stats = {"points": N, "candidates": int(len(cidx))}
-    voxel = p.voxel or DEFAULT_VOXEL
+    cidx = _candidates(pt, table, p, bases)
+    labels = np.full(len(pts), -1, np.int32)
+    stats = {"points": len(pts), "candidates": int(len(cidx))}
     if len(cidx) < 10:
         T["total"] = time.perf_counter() - t0
-        return SegmentResult(labels, table, [], voxel, stats, T)
-    cpts = pt[cidx]
-    ccol = None if col is None else col[cidx]
-    vox = voxelize(cpts, voxel, ccol)
-    for _ in range(6):  # automatic size: grow the voxel until the graph is small enough (surfaces: ~1/v^2)
-        if p.voxel is not None or len(vox) <= p.max_voxels:
-            break
-        voxel *= float(np.sqrt(len(vox) / p.max_voxels)) * 1.05
-        vox = voxelize(cpts, voxel, ccol)
-    V = len(vox)
+        return SegmentResult(labels, table, [], p.voxel or DEFAULT_VOXEL, stats, T)
+    vox, voxel = _auto_voxelize(pt[cidx], None if col is None else col[cidx], p)
     spacing = median_spacing(vox.xyz)
-    r_edge = max(2.5 * voxel, 2.5 * spacing)
-    r_normal = max(2.4 * voxel, 3.0 * spacing)
-    cell = p.patch_cell or max(4.0 * voxel, 3.0 * spacing)
-    stats.update(voxels=V, voxel=voxel, spacing=spacing)
+    stats.update(voxels=len(vox), voxel=voxel, spacing=spacing)
     T["voxels"] = time.perf_counter() - t1
-
     t2 = time.perf_counter()
-    edges, _ = knn_edges(vox.xyz, 10, r_edge)
-    vn, var = normals_and_curvature(vox.xyz, r_normal)
+    edges, _ = knn_edges(vox.xyz, 10, max(2.5 * voxel, 2.5 * spacing))
+    vn, var = normals_and_curvature(vox.xyz, max(2.4 * voxel, 3.0 * spacing))
     if nrm is not None:
-        R_t = table.T_b1_t[:3, :3]
-        nv_sum = np.stack([np.bincount(vox.inverse, nrm[cidx] @ R_t[:, k], V) for k in range(3)], 1)
-        ok = np.linalg.norm(nv_sum, axis=1) > 1e-9
-        vn[ok] = nv_sum[ok] / np.linalg.norm(nv_sum[ok], axis=1, keepdims=True)
-    mask_vox = None
-    if mask_ids is not None:
-        if isinstance(mask_ids, np.ndarray):
-            mask_vox = _voxel_masks(mask_ids[cidx], vox.inverse, V)
-        else:
-            xyz_b1 = vox.xyz @ table.T_b1_t[:3, :3].T + table.T_b1_t[:3, 3]
-            mask_vox = np.asarray(mask_ids.lookup(xyz_b1), dtype=np.int64)
-    patches = make_patches(vox.xyz, vn, var, edges, cell, p.patch_normal_deg, vox.rgb,
-                           colour_tol=p.voxel_colour_tol, mask_vox=mask_vox)
-    pairs, weight = patch_adjacency(patches.of_voxel, edges)
-    T["patches"] = time.perf_counter() - t2
-
-    t3 = time.perf_counter()
-    ray_cell = max(2.0 * voxel, 1.5 * spacing, 0.008)
-    pn = orient_patches(patches.xyz, patches.normal, vox.xyz, ray_cell, pairs)
-    patches.normal = pn
-    T["orient"] = time.perf_counter() - t3
-
-    t4 = time.perf_counter()
-    score, flat = pair_geometry(patches.xyz, pn, pairs, p, step_min=max(1.5 * voxel, 4.0 * table.sigma))
-    hist = None if mask_vox is None else _patch_mask_hist(mask_vox, patches.of_voxel, len(patches))
-    G = RegionGraph(patches.nvox, patches.hist, hist, pairs, weight, score, flat, p)
-    merges = G.contract(p.merge_threshold)
-    if _debug is not None:  # intermediate results for development and tests
-        _debug.update(cidx=cidx, vox=vox, patches=patches, pairs=pairs, weight=weight, score=score,
-                      contracted=G.labels()[patches.of_voxel], graph=G)
-    parts = attach_parts(G, patches.of_voxel, vox.xyz, p)
-    region = G.labels()[patches.of_voxel]  # (V,) region per voxel
+        _given_normals(vn, nrm, cidx, vox, table)
+    mask_vox = _mask_voxels(mask_ids, cidx, vox, table)
     if _debug is not None:
-        _debug["attached"] = region
-    region = dissolve_slivers(region, vox.xyz, SLIVER_WIDTH, p.min_object_voxels)
-    region, split = split_by_tops(region, vox.xyz, vn, edges, p)
-    # an object rises clearly above the table band (noisy clouds hold sheets of table a little above it)
-    min_top = max(p.min_object_height, table.min_height + max(0.008, 2.5 * table.sigma))
-    region, shed = shed_neighbour_walls(region, vox.xyz, vn, edges, p, min_top)
-    T["graph"] = time.perf_counter() - t4
-    stats.update(patches=len(patches), patch_edges=int(len(pairs)), merges=merges, attached=parts, split_by_tops=split,
-                 walls_shed=shed)
-
+        _debug["cidx"] = cidx
+    T["patches"] = time.perf_counter() - t2  # the normals and masks count towards the patch stage
+    region = _regions(vox, vn, var, edges, mask_vox, table, p, voxel, spacing, stats, T, _debug)
     t5 = time.perf_counter()
-    R = int(region.max()) + 1
-    nvox = np.bincount(region, minlength=R)
-    top = np.zeros(R)
-    np.maximum.at(top, region, vox.xyz[:, 2])
-    keep = (nvox >= p.min_object_voxels) & (top >= min_top)
-    keep &= _footprint_lengths(region, vox.xyz, R) >= p.min_object_size
-    if bases is not None and len(bases) and p.base_radius > 0:
-        # what is left of a base plate's corners: regions lying almost all near a base
-        near = np.zeros(V, bool)
-        for b in table.to_table(np.asarray(bases, dtype=np.float64).reshape(-1, 3)):
-            near |= np.hypot(vox.xyz[:, 0] - b[0], vox.xyz[:, 1] - b[1]) < p.base_radius + BASE_FRINGE
-        keep &= np.bincount(region, near.astype(float), R) < 0.8 * nvox
-    # objects ordered by size (largest first): stable, readable ids
-    kept = np.flatnonzero(keep)
-    kept = kept[np.argsort(-nvox[kept], kind="stable")]
-    remap = np.full(R, -1, np.int32)
-    remap[kept] = np.arange(len(kept), dtype=np.int32)
-    labels[cidx] = remap[region][vox.inverse]
+    labels[cidx] = _object_ids(region, _keep_regions(region, vox.xyz, p, table, bases, _min_top(table, p)))[region][
+        vox.inverse]
     T["labels"] = time.perf_counter() - t5
     t6 = time.perf_counter()
     objects = summarize(pts, labels, table)
     T["summary"] = time.perf_counter() - t6
     T["total"] = time.perf_counter() - t0
     stats["objects"] = len(objects)
-    _log(progress, f"{len(cidx)} points above the table -> {V} voxels ({1000 * voxel:.1f} mm) -> {len(patches)} patches "
-         f"-> {len(objects)} objects ({T['total']:.2f} s)")
+    _log(progress, f"{len(cidx)} points above the table -> {len(vox)} voxels ({1000 * voxel:.1f} mm) -> "
+         f"{stats['patches']} patches -> {len(objects)} objects ({T['total']:.2f} s)")
     return SegmentResult(labels, table, objects, voxel, stats, T)

@@ -9,13 +9,13 @@ import numpy as np
 from bimanual_app.io_utils import InputError, Problem
 
 from ._params import SegmentParams
+from ._plane import COS_HORIZONTAL, fit_plane, uniform_sample
 
 # Clouds whose robust extent (2-98th percentile, largest axis) is outside this range are not metric.
 MAX_SCENE_EXTENT = 10.0
 MIN_SCENE_EXTENT = 0.05
 MAX_TABLE_EXTENT = 8.0  # a table longer than this: not metres (a "table the size of a house")
 MIN_TABLE_EXTENT = 0.25  # on both sides: the top of a large box (<= 0.22 m wide) is not a table
-COS_HORIZONTAL = np.cos(np.deg2rad(35.0))
 MIN_BAND, MAX_BAND = 0.003, 0.012  # the table band (points this high are table): 3.5 sigma, within these
 NEAR_B1 = 0.2  # the primary arm stands on the table: its plane passes this close to b1's origin
 
@@ -75,41 +75,6 @@ def check_metric(points: np.ndarray, source: str) -> None:
                                  "table-top scene", "give a cloud in metres in frame b1 that includes the table"))
 
 
-def _ransac(points: np.ndarray, thr: float) -> tuple[np.ndarray, np.ndarray]:
-    import open3d as o3d
-
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-    model, inl = pc.segment_plane(distance_threshold=thr, ransac_n=3, num_iterations=1000, probability=0.99999)
-    return np.asarray(model, dtype=np.float64), np.asarray(inl, dtype=np.int64)
-
-
-def _refine(points: np.ndarray) -> tuple[np.ndarray, float]:
-    """Least-squares plane (unit normal, offset) through ``points`` (M, 3)."""
-    c = points.mean(0)
-    _, _, Vt = np.linalg.svd(points - c, full_matrices=False)
-    n = Vt[2]
-    return n, float(-n @ c)
-
-
-def uniform_sample(points: np.ndarray, n_max: int, seed: int = 0, cell: float = 0.01) -> np.ndarray:
-    """Up to ``n_max`` points (M, 3) spread evenly over the surfaces: one per ``cell`` voxel.
-
-    Clouds from cameras are densest where the cameras look from close by (the top of a large box), so a
-    random subset can hold more box top than table; one point per voxel makes a plane's support its area.
-    """
-    from ._voxels import voxel_keys
-
-    rng = np.random.default_rng(seed)
-    N = len(points)
-    if N > 4 * n_max:  # thin out first (a strided pick is O(N/step)): the voxel pass stays cheap
-        points = points[rng.integers(0, N // (4 * n_max) + 1):: N // (4 * n_max) + 1]
-    _, first = np.unique(voxel_keys(points, cell), return_index=True)
-    sample = points[first]
-    if len(sample) > n_max:
-        sample = sample[rng.choice(len(sample), n_max, replace=False)]
-    return sample
-
-
 def _main_component(uv: np.ndarray, cell: float = 0.02) -> np.ndarray:
     """(M,) bool: the inliers (M, 2 in the plane) of the largest connected patch of the plane.
 
@@ -142,62 +107,17 @@ def fit_table(points: np.ndarray, params: SegmentParams, source: str = "points",
     normal turned up along b1's z (the arm's base stands on the table); for a plane that is not roughly
     horizontal in b1, towards the side with more points within 30 cm (where the objects are).
     """
-    import open3d as o3d
-
-    o3d.utility.random.seed(seed)
     sample = uniform_sample(points, params.plane_sample, seed)
-    thr = params.plane_threshold
-    remaining = sample
-    best = None
-    first_count = 0
-    horizontal = []  # (distance of b1's origin to the plane, model, inliers)
-    for attempt in range(3):
-        if len(remaining) < 50:
-            break
-        model, inl = _ransac(remaining, thr)
-        if attempt == 0:
-            first_count = len(inl)
-            best = (model, remaining[inl])
-        if len(inl) < first_count / 3:
-            break
-        norm = max(np.linalg.norm(model[:3]), 1e-12)
-        if abs(model[2]) / norm >= COS_HORIZONTAL:
-            horizontal.append((abs(model[3]) / norm, model, remaining[inl]))
-            if abs(model[3]) / norm < NEAR_B1:
-                break
-        remaining = np.delete(remaining, inl, axis=0)
-    if horizontal:
-        near = [h for h in horizontal if h[0] < NEAR_B1]
-        best = (near or horizontal)[0][1:]
+    fit = fit_plane(sample, params.plane_threshold, up=np.array([0.0, 0.0, 1.0]), cos_level=COS_HORIZONTAL,
+                    near=NEAR_B1, seed=seed)
     min_inliers = max(50, int(0.05 * len(sample)))
-    if best is None or len(best[1]) < min_inliers:
-        got = 0 if best is None else len(best[1])
+    if fit is None or fit.support < min_inliers:
+        got = 0 if fit is None else fit.support
         raise InputError(Problem(source, "points", f"no table plane found (best plane holds {got} of "
                                  f"{len(sample)} sampled points, need {min_inliers})",
                                  "give the whole scene including the table top (not a crop of the objects), "
                                  "in metres; or raise plane_threshold for a very noisy cloud"))
-    inliers = best[1]
-    n, d = _refine(inliers)
-    # The table's noise: RANSAC's window truncates it, so measure it on all sample points near the plane
-    # (median absolute deviation: the objects' lowest points are few), then refit on a window of
-    # 2.5 sigma when that is wider (clouds of misaligned views hold several layers of table).
-    # Iterated to a fixed point (the same window twice): Open3D's RANSAC runs in parallel threads and its
-    # plane differs a little from run to run despite the seed; the fixed point does not, so the same cloud
-    # gives the same segments.
-    sigma = 0.0
-    prev = None
-    for _ in range(8):
-        r = sample @ n + d
-        near = np.abs(r) < max(3 * thr, 0.03)
-        if near.sum() < 3:
-            break
-        sigma = float(1.4826 * np.median(np.abs(r[near] - np.median(r[near]))))
-        sel = np.abs(r) < max(thr, 2.5 * sigma)
-        if sel.sum() < 3 or (prev is not None and np.array_equal(sel, prev)):
-            break
-        prev = sel
-        inliers = sample[sel]
-        n, d = _refine(inliers)
+    n, d, sigma, inliers = fit.normal, fit.offset, fit.sigma, fit.inliers
     if abs(n[2]) > 0.5:
         # b1 is the primary arm's base frame, its z axis up from the table the arm stands on
         flip = n[2] < 0

@@ -29,7 +29,7 @@ def _cloud_error_mm(path, points: np.ndarray) -> float:
     background the true cloud does not hold)."""
     from scipy.spatial import cKDTree
 
-    from bimanual_app.synth._gtcloud import ground_truth_cloud
+    from bimanual_app.scene import ground_truth_cloud
 
     true_pts, _, _ = ground_truth_cloud(path)
     d = cKDTree(true_pts).query(points)[0]
@@ -142,7 +142,8 @@ def test_cli_writes_the_refinement_and_can_skip_it(paper_scene, tmp_path, capsys
 
 
 def test_analytic_jacobian_matches_finite_differences():
-    from calibration._pointmap_refine import PointMapView, _jacobian, _Pairs, _residuals
+    from calibration._pointmap_refine import PointMapView, _jacobian, _residuals
+    from calibration._pointmaps import MapPairs
 
     rng = np.random.default_rng(0)
     views = []
@@ -154,8 +155,8 @@ def test_analytic_jacobian_matches_finite_differences():
              0.8, make_T(so3_exp([0, 0, 3.0]), [0.7, 0, 0]))
     va = np.repeat(np.arange(6), 40)
     vb = (va + rng.integers(1, 6, len(va))) % 6  # pairs within each arm and across
-    pairs = _Pairs((va, rng.uniform(-0.2, 0.2, (len(va), 3)) + [0, 0, 0.5], vb,
-                    rng.uniform(-0.2, 0.2, (len(va), 3)) + [0, 0, 0.5], rng.normal(size=(len(va), 3))), 6)
+    pairs = MapPairs(va, rng.uniform(-0.2, 0.2, (len(va), 3)) + [0, 0, 0.5], vb,
+                     rng.uniform(-0.2, 0.2, (len(va), 3)) + [0, 0, 0.5], rng.normal(size=(len(va), 3)), 6)
     J = _jacobian(np.zeros(19), views, start, pairs)
     h = 1e-6
     Jn = np.stack([(_residuals(h * e, views, start, pairs) - _residuals(-h * e, views, start, pairs)) / (2 * h)
@@ -165,7 +166,7 @@ def test_analytic_jacobian_matches_finite_differences():
 
 
 def test_maps_a_pinhole_does_not_fit_are_matched_by_nearest_neighbour(paper_scene, monkeypatch):
-    import calibration._pointmap_refine as pm
+    import calibration._pointmaps as pm
     from bimanual_app.scene import load_scene
     from calibration import CalibrationOptions, calibrate, scene_cloud
 
@@ -173,8 +174,8 @@ def test_maps_a_pinhole_does_not_fit_are_matched_by_nearest_neighbour(paper_scen
     plain = calibrate(scene, options=CalibrationOptions(point_maps=False))
     monkeypatch.setattr(pm, "pointmap_intrinsics", lambda P, ok: np.full(4, np.nan))
     used = []
-    real = pm._correspondences
-    monkeypatch.setattr(pm, "_correspondences", lambda *a, **k: used.append(1) or real(*a, **k))
+    real = pm._nearest_partners
+    monkeypatch.setattr(pm, "_nearest_partners", lambda *a, **k: used.append(1) or real(*a, **k))
     res = calibrate(scene, options=REFINE)
     assert used and res.info["point_maps"]["accepted"], res.info["point_maps"]["reason"]
     e_plain = _cloud_error_mm(paper_scene, scene_cloud(scene, plain)[0])

@@ -195,3 +195,19 @@ def test_truth_meshes_are_their_convex_hulls_not_their_boxes():
     corner = T[:3, 3] + np.array([0.45 * size[0], 0.45 * size[1], 0.0])
     assert not torus.contains(corner[None])[0] and other.contains(corner[None])[0]
     assert torus.contains(T[:3, 3][None])[0]  # (its hull: the hole is filled)
+
+
+def test_enclosing_box_is_the_minimum_area_rectangle_longer_side_first():
+    """box_shape_from_points: OpenCV's minimum-area rectangle of the footprint (centred, so float32 keeps
+    sub-millimetre precision far from b1's origin), its longer side along the body's x."""
+    from bimanual_app.simulation._bodies import box_shape_from_points
+
+    size = np.array([0.12, 0.30, 0.08])  # longer along y before the yaw
+    R = so3_exp(np.array([0.0, 0.0, 0.6]))
+    centre = np.array([2.5, -1.7, 0.04])
+    pts = box_surface_points(np.zeros(3), size, 4000, visible_only=False) @ R.T + centre
+    box = box_shape_from_points(pts, np.array([0.0, 0.0, 1.0]))
+    assert np.allclose(box.size, [0.30, 0.12, 0.08], atol=1e-4)
+    assert np.allclose(box.T_b1_o[:3, 3], centre, atol=1e-4)
+    assert abs(abs(box.T_b1_o[:3, 0] @ R[:, 1]) - 1) < 1e-6  # the body's x along the box's long side
+    assert np.isclose(np.linalg.det(box.T_b1_o[:3, :3]), 1.0)

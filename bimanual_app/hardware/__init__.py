@@ -20,7 +20,7 @@ See docs/hardware.md.
 
 from __future__ import annotations
 
-import importlib
+from bimanual_app.lazy import lazy_exports
 
 _EXPORTS = {
     "PiperArm": "_piper", "Feedback": "_piper", "STATUS_TEXT": "_piper", "EXECUTE_HARDWARE": "_piper",
@@ -45,12 +45,4 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS)
 
 
-def __getattr__(name: str):
-    if name in _EXPORTS:
-        mod = importlib.import_module(f"{__name__}.{_EXPORTS[name]}")
-        return getattr(mod, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__():
-    return __all__
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -8,7 +8,9 @@ only its tool, stays above the table and inside the cell.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
+from itertools import chain, islice
 
 import numpy as np
 
@@ -115,31 +117,29 @@ class SafetyLimits:
     def config_problems(self, Q: np.ndarray, where: str = "q", limit: int = 5) -> list[Problem]:
         """Joint-limit and workspace problems of configurations ``Q`` (N, J) (at most ``limit`` listed)."""
         Q = check_shape(f"{self.name} {where}", np.atleast_2d(np.asarray(Q, float)), (None, self.n_joints))
-        out: list[Problem] = []
         if not np.all(np.isfinite(Q)):
             i = int(np.argmax(~np.all(np.isfinite(Q), axis=1)))
             return [Problem(self.name, f"{where}[{i}]", "not a finite number", "fix the plan")]
-        lo_bad = Q < self.lower - self.tol
-        hi_bad = Q > self.upper + self.tol
-        for i, j in zip(*np.nonzero(lo_bad | hi_bad)):
-            out.append(Problem(self.name, f"{where}[{i}].j{j + 1}",
-                               f"joint {j + 1} = {Q[i, j]:+.4f} rad ({np.degrees(Q[i, j]):+.1f} deg) is outside "
-                               f"[{self.lower[j]:+.4f}, {self.upper[j]:+.4f}] rad",
-                               "keep joint values inside the robot's limits"))
-            if len(out) >= limit:
-                return out
-        if self.workspace is not None:
-            P = self.robot.fk_frames(Q, list(self.links))[..., :3, 3]  # (N, L, 3)
-            inside = self.workspace.contains(P)
-            for i, k in zip(*np.nonzero(~inside)):
-                p = P[i, k]
-                out.append(Problem(self.name, f"{where}[{i}]",
-                                   f"{self.links[k]} at ({p[0]:+.3f}, {p[1]:+.3f}, {p[2]:+.3f}) m is outside the "
-                                   f"workspace box min {list(self.workspace.lower)} max {list(self.workspace.upper)}",
-                                   "change the pose, or widen the box (workspace: min/max) if the cell allows"))
-                if len(out) >= limit:
-                    return out
-        return out
+        # lazily: the workspace check (forward kinematics) runs only when the joint problems leave room
+        return list(islice(chain(self._joint_problems(Q, where), self._workspace_problems(Q, where)), limit))
+
+    def _joint_problems(self, Q: np.ndarray, where: str) -> Iterator[Problem]:
+        for i, j in zip(*np.nonzero((Q < self.lower - self.tol) | (Q > self.upper + self.tol))):
+            yield Problem(self.name, f"{where}[{i}].j{j + 1}",
+                          f"joint {j + 1} = {Q[i, j]:+.4f} rad ({np.degrees(Q[i, j]):+.1f} deg) is outside "
+                          f"[{self.lower[j]:+.4f}, {self.upper[j]:+.4f}] rad",
+                          "keep joint values inside the robot's limits")
+
+    def _workspace_problems(self, Q: np.ndarray, where: str) -> Iterator[Problem]:
+        if self.workspace is None:
+            return
+        P = self.robot.fk_frames(Q, list(self.links))[..., :3, 3]  # (N, L, 3)
+        for i, k in zip(*np.nonzero(~self.workspace.contains(P))):
+            p = P[i, k]
+            yield Problem(self.name, f"{where}[{i}]",
+                          f"{self.links[k]} at ({p[0]:+.3f}, {p[1]:+.3f}, {p[2]:+.3f}) m is outside the "
+                          f"workspace box min {list(self.workspace.lower)} max {list(self.workspace.upper)}",
+                          "change the pose, or widen the box (workspace: min/max) if the cell allows")
 
     def trajectory_problems(self, traj: JointTrajectory, dt: float = 0.02) -> list[Problem]:
         """Joint, velocity and workspace problems of a whole trajectory (sampled every ``dt`` s too)."""

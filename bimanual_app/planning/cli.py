@@ -111,28 +111,20 @@ def _load_inputs(args):
                                  " come from the calibration)",
                                  f"run `bijcr calibrate {args.scene} --out DIR` and pass --calibration DIR/calibration.json;"
                                  " for a synthetic scene, --use-ground-truth uses ground_truth.yaml instead"))
-    colors = None
     if cloud_path is None:
-        try:
-            from bimanual_app.synth import ground_truth_cloud
-        except ImportError as e:
-            raise InputError(Problem(str(scene.path), "cloud", "no scene cloud given",
-                                     "pass --cloud scene_b1.ply (from `bijcr calibrate`)")) from e
+        from bimanual_app.scene import ground_truth_cloud
+
         points, colors, _ = ground_truth_cloud(scene.path)
         cloud_src = "ground truth (synthetic scene)"
     else:
-        if not cloud_path.is_file():
-            raise InputError(Problem(str(cloud_path), "", "scene cloud not found",
-                                     "run `bijcr calibrate` (it writes scene_b1.ply beside calibration.json) or pass --cloud"))
-        import open3d as o3d
+        from segmentation import read_cloud
 
-        pc = o3d.io.read_point_cloud(str(cloud_path))
-        points = np.asarray(pc.points, dtype=np.float64)
-        if pc.has_colors():
-            colors = (np.asarray(pc.colors) * 255).astype(np.uint8)
+        points, colors, _ = read_cloud(cloud_path)
+        finite = np.all(np.isfinite(points), axis=1)
+        points, colors = points[finite], None if colors is None else colors[finite]
         cloud_src = str(cloud_path)
         if len(points) == 0:
-            raise InputError(Problem(str(cloud_path), "points", "the scene map has no points",
+            raise InputError(Problem(str(cloud_path), "points", "the scene map has no finite points",
                                      "give a non-empty metric cloud (scene_b1.ply from `bijcr calibrate`)"))
     return scene, robot, T_b1_b2, points, colors, cloud_src, source
 

@@ -48,27 +48,27 @@ class DenseOptions:
 
 
 def fit_plane(xyz: np.ndarray, centres: np.ndarray, threshold: float, seed: int = 0) -> tuple[np.ndarray, float, float]:
-    """Dominant plane of points ``xyz`` (P, 3) by RANSAC (Open3D), oriented towards the cameras.
+    """Dominant plane of points ``xyz`` (P, 3), oriented towards the cameras.
+
+    The segmentation's plane fitter (:func:`segmentation.fit_plane`: Open3D RANSAC refined by least squares
+    to a fixed point) on the sparse points as they are: the world frame of an SfM model has no "up", so the
+    biggest plane wins, and its units are arbitrary, so the noise window is set by ``threshold`` alone.
 
     Args:
         centres: (M, 3) camera centres; the normal is flipped so that the cameras are on its + side.
         threshold: inlier distance (same units as xyz).
     Returns ``(n (3,), d, inlier_fraction)`` with ``n . x + d`` the signed height above the plane.
     """
-    import open3d as o3d
+    from segmentation import fit_plane as robust_plane
 
     xyz = check_shape("xyz", xyz, (None, 3))
-    if len(xyz) < 10:
+    fit = robust_plane(xyz, float(threshold), iterations=2000, noise_window=0.0, min_points=10, seed=seed)
+    if fit is None:
         return np.array([0.0, 0.0, 1.0]), 0.0, 0.0
-    o3d.utility.random.seed(seed)
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz.astype(np.float64)))
-    (a, b, c, d), inliers = pc.segment_plane(distance_threshold=float(threshold), ransac_n=3, num_iterations=2000)
-    n = np.array([a, b, c], dtype=np.float64)
-    norm = np.linalg.norm(n)
-    n, d = n / norm, d / norm
+    n, d = fit.normal, fit.offset
     if np.median(centres @ n + d) < 0:
         n, d = -n, -d
-    return n, float(d), len(inliers) / len(xyz)
+    return n, float(d), fit.fraction
 
 
 def sweep_planes(n_w: np.ndarray, d_w: float, heights: np.ndarray, T_w_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -12,7 +12,7 @@ Public API:
         shape_from_points(points, table, kind="hull"|"box"|"auto"), box_shape(T_b1_o, size, mass, kind),
         trim_outer(points, up), box_from_faces(points, up, table) -> (box, boxness),
         BodyShape.surface_points_b1(), BodyShape.contains(points, margin)
-    read_cloud(ply), table_from_segments(points, labels, extras), estimated_shapes(points, labels, table, kind="auto"),
+    table_from_segments(points, labels, extras), estimated_shapes(points, labels, table, kind="auto"),
         truth_shapes(gt_objects), match_truth(est, truth), build_world(robot, T_b1_b2, table, est, truth, ...)
     HoldMonitor(world, obj): .lifted_and_held(arms, rise=0.10, hold_s=2.0, exclusive=False) -> HoldVerdict
     Recorder(width, height, fps): frames -> .save_gif(path), .keyframe(name), .save_keyframes(folder)
@@ -31,13 +31,13 @@ from ._bodies import (
 )
 from ._checks import HoldMonitor, HoldSample, HoldVerdict
 from ._record import Recorder, default_camera
-from ._scene import build_world, estimated_shapes, match_truth, read_cloud, table_from_segments, truth_shapes
+from ._scene import build_world, estimated_shapes, match_truth, table_from_segments, truth_shapes
 from ._world import GRIP_FORCE, PreviewWorld, SimArm, SimObject
 
 __all__ = [
     "PreviewWorld", "SimArm", "SimObject", "GRIP_FORCE",
     "TablePlane", "BodyShape", "fit_table", "table_from_plane", "shape_from_points", "box_shape", "remove_outliers",
     "trim_outer", "box_from_faces",
-    "read_cloud", "table_from_segments", "estimated_shapes", "truth_shapes", "match_truth", "build_world",
+    "table_from_segments", "estimated_shapes", "truth_shapes", "match_truth", "build_world",
     "HoldMonitor", "HoldSample", "HoldVerdict", "Recorder", "default_camera",
 ]

@@ -31,6 +31,8 @@ DEFAULT_DENSITY = 400.0  # kg/m^3
 MASS_RANGE = (0.02, 1.5)  # kg
 BOXNESS = 0.7  # kind="auto": objects whose side normals are this box-like are simulated as their box ...
 BOX_FILL = 0.85  # ... or, when the normals are too noisy to tell, whose hull fills this much of its box
+TABLE_SAMPLE = 20_000  # fit_table: points handed to the plane fitter (one per 1 cm voxel)
+NEAR_B1 = 0.2  # fit_table: the primary arm stands on the table: its plane passes this close to b1's origin
 OUTER_PERCENTILE = 98.0  # trim_outer: the body's faces sit at this percentile of the points, not their extreme
 
 
@@ -101,15 +103,19 @@ def table_from_plane(normal: np.ndarray, d: float, points: np.ndarray | None = N
 
 
 def fit_table(points: np.ndarray, labels: np.ndarray | None = None, threshold: float = 0.006,
-              iterations: int = 400, seed: int = 0) -> TablePlane:
-    """Fit the table plane to a cloud (N,3) in b1 by RANSAC on the background points (``labels == -1``).
+              iterations: int = 1000, seed: int = 0) -> TablePlane:
+    """Fit the table plane to a cloud (N,3) in b1 on the background points (``labels == -1``).
 
-    Only near-horizontal planes (normal within 30 degrees of b1's z) are accepted, so a box side or a wall
-    does not win. The plane is refined by least squares on its inliers.
+    The segmentation's plane fitter (:func:`segmentation.fit_plane`: Open3D RANSAC on an evenly spread
+    subset, refined by least squares to a fixed point) restricted to near-horizontal planes (normal within
+    30 degrees of b1's z), so a box side or a wall does not win; among those, the one passing near b1's
+    origin (where the primary arm stands) wins over a large box top.
 
     Raises:
         ValueError: fewer than 50 background points, or no near-horizontal plane.
     """
+    from segmentation import fit_plane, uniform_sample
+
     p = check_shape("points", np.asarray(points, dtype=np.float64), (None, 3))
     if labels is not None:
         labels = check_shape("labels", np.asarray(labels), (len(p),))
@@ -117,31 +123,12 @@ def fit_table(points: np.ndarray, labels: np.ndarray | None = None, threshold: f
     p = p[np.all(np.isfinite(p), axis=1)]
     if len(p) < 50:
         raise ValueError(f"only {len(p)} table/background points: cannot fit the table plane")
-    rng = np.random.default_rng(seed)
-    sub = p if len(p) <= 20000 else p[rng.choice(len(p), 20000, replace=False)]
-    best, best_count = None, -1
-    # Hand-written RANSAC (vectorised over hypotheses): Open3D's segment_plane cannot restrict the
-    # normal's direction, and a large box top would otherwise win on cluttered tables.
-    idx = rng.integers(0, len(sub), size=(iterations, 3))
-    a, b, c = sub[idx[:, 0]], sub[idx[:, 1]], sub[idx[:, 2]]
-    nrm = np.cross(b - a, c - a)
-    ln = np.linalg.norm(nrm, axis=1)
-    ok = ln > 1e-9
-    nrm[ok] /= ln[ok, None]
-    ok &= np.abs(nrm[:, 2]) > np.cos(np.radians(30))
-    for k in np.flatnonzero(ok):
-        dist = np.abs((sub - a[k]) @ nrm[k])
-        count = int(np.count_nonzero(dist < threshold))
-        if count > best_count:
-            best, best_count = (nrm[k], -float(a[k] @ nrm[k])), count
-    if best is None:
+    fit = fit_plane(uniform_sample(p, TABLE_SAMPLE, seed), threshold, up=np.array([0.0, 0.0, 1.0]),
+                    cos_level=np.cos(np.radians(30)), near=NEAR_B1, level_only=True, iterations=iterations, seed=seed)
+    if fit is None:
         raise ValueError("no near-horizontal plane found in the background points")
-    n, d = best
-    inl = p[np.abs(p @ n + d) < threshold]
-    centre = inl.mean(axis=0)
-    _, _, vt = np.linalg.svd(inl - centre, full_matrices=False)
-    n = vt[2] * np.sign(vt[2][2] if vt[2][2] != 0 else 1.0)
-    return table_from_plane(n, -float(n @ centre), inl)
+    inl = p[np.abs(p @ fit.normal + fit.offset) < max(threshold, 2.5 * fit.sigma)]
+    return table_from_plane(fit.normal, fit.offset, inl if len(inl) >= 3 else fit.inliers)
 
 
 @dataclass
@@ -416,16 +403,21 @@ def box_from_faces(points: np.ndarray, up: np.ndarray, table: TablePlane | None 
 
 
 def box_shape_from_points(points: np.ndarray, up: np.ndarray, density: float = DEFAULT_DENSITY) -> BodyShape:
-    """A box (z along ``up``) around points (N,3): footprint from trimesh's minimum-area rectangle."""
-    import trimesh
+    """A box (z along ``up``) around points (N,3): footprint from OpenCV's minimum-area rectangle, its
+    longer side along the box's x."""
+    import cv2
 
     R0 = _frame_from_normal(np.asarray(up, dtype=np.float64))
     local = points @ R0
-    T2, ext = trimesh.bounds.oriented_bounds_2D(local[:, :2])
-    # T2 maps footprint points into the rectangle's centred frame
-    A = np.linalg.inv(T2)
-    c2 = A[:2, 2]
-    ax = A[:2, 0] / np.linalg.norm(A[:2, 0])
+    mid = local[:, :2].mean(axis=0)  # centred: minAreaRect works in float32
+    rect = cv2.minAreaRect((local[:, :2] - mid).astype(np.float32))
+    corners = cv2.boxPoints(rect).astype(np.float64)
+    sides = np.array([corners[1] - corners[0], corners[2] - corners[1]])
+    lengths = np.linalg.norm(sides, axis=1)
+    order = np.argsort(-lengths, kind="stable")  # longer side first
+    ext = lengths[order]
+    ax = sides[order[0]] / max(lengths[order[0]], 1e-12)
+    c2 = mid + np.asarray(rect[0], dtype=np.float64)
     Rz = np.array([[ax[0], -ax[1], 0], [ax[1], ax[0], 0], [0, 0, 1.0]])
     zlo, zhi = local[:, 2].min(), local[:, 2].max()
     R = R0 @ Rz

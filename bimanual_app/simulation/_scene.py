@@ -3,37 +3,20 @@ and (for evaluation on synthetic scenes) the true objects from ground_truth.yaml
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
-from bimanual_app.io_utils import InputError, Problem
 from bimanual_app.transforms import check_shape, check_T
 
 from ._bodies import BodyShape, TablePlane, box_shape, fit_table, hull_shape, shape_from_points, table_from_plane
 from ._record import Recorder
 from ._world import PreviewWorld, SimObject
 
-__all__ = ["read_cloud", "table_from_segments", "estimated_shapes", "truth_shapes", "match_truth", "build_world",
+__all__ = ["table_from_segments", "estimated_shapes", "truth_shapes", "match_truth", "build_world",
            "ESTIMATE_COLOR", "TRUTH_COLOR"]
 
 ESTIMATE_COLOR = (0.20, 0.55, 0.85, 1.0)
 TRUTH_COLOR = (0.90, 0.35, 0.20, 1.0)
 GHOST_ALPHA = 0.35
-
-
-def read_cloud(path: str | Path) -> np.ndarray:
-    """(N,3) float64 points of a PLY point cloud (Open3D reader). Raises InputError when unreadable/empty."""
-    import open3d as o3d
-
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(Problem(str(path), "", "point cloud file not found", "run `bijcr calibrate` to write it"))
-    pc = o3d.io.read_point_cloud(str(path))
-    pts = np.asarray(pc.points, dtype=np.float64)
-    if len(pts) == 0:
-        raise InputError(Problem(str(path), "", "the point cloud is empty", "re-run calibration on a scene with point maps"))
-    return pts
 
 
 def table_from_segments(points: np.ndarray, labels: np.ndarray, seg_extras: dict | None = None) -> TablePlane:
@@ -78,7 +61,7 @@ def truth_shapes(objects: list[dict]) -> dict[int, BodyShape]:
     ``shape`` (else ``kind``) box / cylinder / sphere map to the same primitive (a cylinder's axis is o's z,
     size = (2r, 2r, h)). A mesh of the synthetic catalogue (``shape: mesh``, ``kind`` duck / mug / bunny /
     torus) is the convex hull of that mesh at its ``size``, the shape the scene was simulated with
-    (``bimanual_app.synth.mesh_hull``); any other mesh is simulated as the box of its ``size``.
+    (``bimanual_app.scene.mesh_hull``); any other mesh is simulated as the box of its ``size``.
     """
     out = {}
     for i, o in enumerate(objects):
@@ -88,7 +71,7 @@ def truth_shapes(objects: list[dict]) -> dict[int, BodyShape]:
         kind = str(o.get("shape", o.get("kind", "box"))).lower()  # synth: shape box/cylinder/mesh
         if kind == "mesh" and size.size == 3:
             try:
-                from bimanual_app.synth import mesh_hull
+                from bimanual_app.scene import mesh_hull
 
                 out[oid] = hull_shape(T, mesh_hull(str(o.get("kind", "")), size), o.get("mass"))
                 continue

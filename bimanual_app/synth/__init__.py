@@ -7,12 +7,13 @@ Public API:
     NOISE_LEVELS: the emulator's noise levels (name -> NoiseLevel(rot_deg, trans_m, depth_rel)).
     MAP_NOISES: point-map error models (``make_synthetic_scene(map_noise="fm")``; name -> MapNoise).
     mesh_hull(kind, size) -> (K, 3): a catalogue mesh's convex hull at a ground-truth size (its collision shape).
+    (ground_truth_cloud and mesh_hull live in bimanual_app.scene, which readers of ground truth use.)
 See docs/synth.md.
 """
 
+from bimanual_app.scene import ground_truth_cloud, mesh_hull
+
 from ._emulator import MAP_NOISES, NOISE_LEVELS, MapNoise, NoiseLevel
 from ._generate import make_synthetic_scene
-from ._gtcloud import ground_truth_cloud
-from ._objects import mesh_hull
 
 __all__ = ["make_synthetic_scene", "ground_truth_cloud", "mesh_hull", "NOISE_LEVELS", "NoiseLevel", "MAP_NOISES", "MapNoise"]

@@ -19,9 +19,10 @@ Mesh kinds missing from the installed pybullet_data are skipped (the catalogue f
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
+
+from bimanual_app.scene.meshes import CATALOGUE_MESHES, load_catalogue_mesh, pybullet_data
 
 from ._textures import object_texture
 
@@ -30,12 +31,12 @@ ONE_HAND_MAX_WIDTH = 0.065
 ONE_HAND_MAX_MASS = 1.2
 TWO_HANDS_MIN_LENGTH = 0.25
 
-# mesh kinds: file in pybullet_data, rotation to z-up (rotation vector), target longest horizontal extent
+# mesh kinds (files and z-up rotations: bimanual_app.scene.meshes): target longest horizontal extent, texture
 _MESHES = {
-    "duck": ("duck.obj", (np.pi / 2, 0.0, 0.0), (0.055, 0.075), "duckCM.png"),
-    "mug": ("objects/mug.obj", (0.0, 0.0, 0.0), (0.08, 0.10), None),
-    "bunny": ("bunny.obj", (np.pi / 2, 0.0, 0.0), (0.07, 0.10), None),
-    "torus": ("torus/torus_textured.obj", (np.pi / 2, 0.0, 0.0), (0.07, 0.09), None),
+    "duck": ((0.055, 0.075), "duckCM.png"),
+    "mug": ((0.08, 0.10), None),
+    "bunny": ((0.07, 0.10), None),
+    "torus": ((0.07, 0.09), None),
 }
 MESH_KINDS = tuple(_MESHES)
 PRIMITIVE_KINDS = ("large_box", "box", "small_box", "cylinder")
@@ -83,26 +84,17 @@ class ObjectSpec:
         return bool(self.mass > ONE_HAND_MAX_MASS or max(self.size[0], self.size[1]) > TWO_HANDS_MIN_LENGTH)
 
 
-def _pybullet_data() -> Path:
-    import pybullet_data
-
-    return Path(pybullet_data.getDataPath())
-
-
 def available_mesh_kinds() -> tuple[str, ...]:
-    root = _pybullet_data()
-    return tuple(k for k, (f, *_rest) in _MESHES.items() if (root / f).is_file())
+    root = pybullet_data()
+    return tuple(k for k in _MESHES if (root / CATALOGUE_MESHES[k][0]).is_file())
 
 
 def _mesh_spec(kind: str, rng: np.random.Generator) -> ObjectSpec:
     import trimesh
     from PIL import Image
 
-    from bimanual_app.transforms import so3_exp
-
-    fname, rotvec, (lo, hi), tex_name = _MESHES[kind]
-    mesh = trimesh.load(_pybullet_data() / fname, force="mesh", process=False)
-    V = np.asarray(mesh.vertices, dtype=np.float64) @ so3_exp(np.array(rotvec)).T
+    (lo, hi), tex_name = _MESHES[kind]
+    mesh, V = load_catalogue_mesh(kind)
     ext = V.max(0) - V.min(0)
     s = rng.uniform(lo, hi) / max(ext[0], ext[1])
     V = V * s
@@ -115,7 +107,7 @@ def _mesh_spec(kind: str, rng: np.random.Generator) -> ObjectSpec:
         uv = np.stack([np.arctan2(V[:, 1], V[:, 0]) / (2 * np.pi) + 0.5,
                        (V[:, 2] - V[:, 2].min()) / max(size[2], 1e-9)], axis=1)
     if tex_name is not None:
-        texture = np.asarray(Image.open(_pybullet_data() / tex_name).convert("RGB"))
+        texture = np.asarray(Image.open(pybullet_data() / tex_name).convert("RGB"))
     else:
         texture = object_texture(rng)
     tm = trimesh.Trimesh(V, mesh.faces, process=False)
@@ -124,32 +116,6 @@ def _mesh_spec(kind: str, rng: np.random.Generator) -> ObjectSpec:
     mass = float(abs(tm.convex_hull.volume) * density * (0.35 if kind == "mug" else 1.0))
     return ObjectSpec(kind, "mesh", size, round(mass, 4), texture, V, np.asarray(mesh.faces),
                       np.asarray(uv, dtype=np.float64), np.asarray(tm.vertex_normals), hull)
-
-
-def mesh_hull(kind: str, size) -> np.ndarray:
-    """(K, 3) convex-hull vertices, in the object frame o, of catalogue mesh ``kind`` scaled to the box
-    ``size`` (3,) that ground_truth.yaml records: the collision shape the scene was simulated with (see
-    :func:`_mesh_spec`: a uniform scale, centred on the bounding box). Raises ValueError for an unknown
-    kind, a missing mesh file, or a size no uniform scale of the mesh gives."""
-    import trimesh
-
-    from bimanual_app.transforms import so3_exp
-
-    if kind not in _MESHES:
-        raise ValueError(f"{kind!r} is not a catalogue mesh ({', '.join(_MESHES)})")
-    fname, rotvec, _, _ = _MESHES[kind]
-    path = _pybullet_data() / fname
-    if not path.is_file():
-        raise ValueError(f"mesh file {path} not found")
-    V = np.asarray(trimesh.load(path, force="mesh", process=False).vertices, dtype=np.float64) @ so3_exp(np.array(rotvec)).T
-    ext = V.max(0) - V.min(0)
-    size = np.asarray(size, dtype=np.float64).reshape(3)
-    s = size / np.maximum(ext, 1e-12)
-    if np.ptp(s) > 0.01 * s.mean():
-        raise ValueError(f"size {size.tolist()} is not a uniform scale of the {kind} mesh")
-    V = V * s.mean()
-    V -= 0.5 * (V.max(0) + V.min(0))
-    return np.asarray(trimesh.Trimesh(V, process=False).convex_hull.vertices)
 
 
 def sample_spec(kind: str, rng: np.random.Generator) -> ObjectSpec:

@@ -22,10 +22,8 @@ def measure_scene(path: Path) -> dict:
     from PIL import Image
     from scipy.spatial import cKDTree
 
-    from bimanual_app.scene import load_scene
+    from bimanual_app.scene import ground_truth_cloud, load_scene
     from bimanual_app.transforms import inv_T, rotation_angle_between
-
-    from ._gtcloud import ground_truth_cloud
 
     scene = load_scene(path)
     gt, rec = scene.ground_truth, scene.reconstruction

@@ -217,12 +217,12 @@ class TaskInputs:
 
 def load_inputs(scene, paths: StagePaths) -> TaskInputs:
     """Read calibration, cloud, segments and grasps; check they belong together and to ``scene``."""
-    from bimanual_app.simulation import read_cloud
+    from segmentation import read_cloud
 
     cal = _read_calibration(paths.calibration)
     check_calibration_scene(scene, cal, paths.calibration)
     T_b1_b2 = _T(cal, "T_b1_b2", paths.calibration)
-    points = read_cloud(paths.cloud)
+    points = read_cloud(paths.cloud)[0]
     try:
         with np.load(paths.segments, allow_pickle=False) as z:
             seg = {k: z[k] for k in z.files}

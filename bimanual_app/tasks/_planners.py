@@ -16,9 +16,18 @@ approaches, closes on the object, lifts 6 cm, carries it (object attached)
 to the transfer pose -> secondary reaches its pre-grasp (object attached to the primary, as an obstacle)
 -> straight approach -> closes -> primary opens -> retreats 8 cm along its approach -> hold 2.3 s
 (checked: held by the secondary only).
+
+Each fallback ladder (a push pair's squeeze depth, the joint lift's height, a push pair's back-off, the
+secondary's make-way turn, the hand-over's lift and carry padding, the receiver's pre-grasp and its way
+there) is a list of named :class:`Strategy` tried in order by :func:`first_success`, each attempt
+testable on its own.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
@@ -43,6 +52,7 @@ HOLD_S = 2.3  # s of the checked hold (2 s needed)
 CLOSE_S = 1.0  # s to close a gripper (force limited: it stops on the object)
 SETTLE_S = 0.4  # s still after a gripper change
 CLOSED = 0.0  # commanded width when closing on an object (the force limit stops the fingers)
+ARMS = ("primary", "secondary")
 
 
 def _jt(times, q, widths):
@@ -264,6 +274,48 @@ def _goal_ik(motion: TaskMotion, arm: str, T: np.ndarray, seeds: list) -> np.nda
     raise last or PlanFailure("reach", f"no seed for the {arm} arm")
 
 
+@dataclass(frozen=True)
+class Strategy:
+    """One way to do a step of a plan: its name (what the plan says it did) and the attempt, a callable
+    that returns the step's result or raises PlanFailure."""
+
+    name: str
+    attempt: Callable[[], object]
+
+
+class StrategiesFailed(Exception):
+    """Every strategy of a ladder failed: ``failures`` holds ``(name, PlanFailure)`` of each, in order."""
+
+    def __init__(self, failures: list[tuple[str, PlanFailure]]):
+        self.failures = failures
+        super().__init__("; ".join(f"{name}: {e.message}" for name, e in failures) or "no strategy to try")
+
+    @property
+    def first(self) -> PlanFailure:
+        return self.failures[0][1]
+
+    @property
+    def last(self) -> PlanFailure:
+        return self.failures[-1][1]
+
+    def combined(self) -> PlanFailure:
+        """One failure naming every strategy and its reason, with the stage of the last."""
+        return PlanFailure(self.last.stage, "; ".join(f"{name}: {e.message}" for name, e in self.failures))
+
+
+def first_success(strategies: Iterable[Strategy]) -> tuple[str, object]:
+    """Try ``strategies`` in order and return ``(name, result)`` of the first whose attempt does not raise
+    PlanFailure (the later ones are not tried). Raises :class:`StrategiesFailed` with the name and reason
+    of each failure when none succeeds."""
+    failures = []
+    for s in strategies:
+        try:
+            return s.name, s.attempt()
+        except PlanFailure as e:
+            failures.append((s.name, e))
+    raise StrategiesFailed(failures)
+
+
 def plan_joint_grasp(motion: TaskMotion, choice: JointChoice, q_start: dict, width_start: dict,
                      lift: float = LIFT, up: np.ndarray | None = None) -> TaskPlan:
     """The joint-grasp plan for ``choice`` from ``q_start`` (arm -> (J,)); raises PlanFailure (its message
@@ -275,144 +327,194 @@ def plan_joint_grasp(motion: TaskMotion, choice: JointChoice, q_start: dict, wid
         raise PlanFailure(e.stage, f"{at[-1]}: {e.message}") from None
 
 
+@dataclass
+class _Pair:
+    """A joint grasp's fixed inputs: the grasps per arm and the gripper openings of its phases."""
+
+    motion: TaskMotion
+    G: dict  # arm -> GraspSpec
+    push: bool  # a push pair (the fingertips squeeze two faces) rather than a pinch pair
+    up: np.ndarray  # (3,) up in b1
+    w_open: dict = field(init=False)  # arm -> commanded width while open
+    w_hold: dict = field(init=False)  # arm -> commanded width while holding
+    opening_hold: dict = field(init=False)  # arm -> the fingers' opening while holding (collision checks)
+
+    def __post_init__(self):
+        G = self.G
+        self.w_open = {a: G[a].width for a in ARMS}
+        self.w_hold = {a: (G[a].width if self.push else CLOSED) for a in ARMS}
+        self.opening_hold = {a: (G[a].width if self.push else (G[a].contact_width or 0.0)) for a in ARMS}
+
+
 def _joint_grasp(motion, choice, q_start, width_start, lift, up, at) -> TaskPlan:
     up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=np.float64)
     plan = TaskPlan({a: np.asarray(q, float) for a, q in q_start.items()}, dict(width_start))
-    arms = ("primary", "secondary")
-    G = {"primary": choice.primary, "secondary": choice.secondary}
-    push = choice.kind == "push"
-    w_open = {a: G[a].width for a in arms}
-    w_hold = {a: (G[a].width if push else CLOSED) for a in arms}
-    opening_hold = {a: (G[a].width if push else (G[a].contact_width or 0.0)) for a in arms}
-    plan.info = {"kind": choice.kind, "score": choice.score, **choice.info, "grip": {a: G[a].kind for a in arms},
-                 "grasps": {a: {"T_b1_g": G[a].T_b1_g, "width": G[a].width, "press": G[a].press} for a in arms}}
-
-    # 1. reach both pre-grasps together (12 DoF): the object is an obstacle
-    pre = {a: _pre(motion, G[a]) for a in arms}
-    with motion.context("map", openings=w_open):
-        sols = {a: _approachable(motion, a, _goal_ik(motion, a, pre[a], [G[a].q_pre, q_start[a], G[a].q]), pre[a],
-                                 G[a].T_b1_g) for a in arms}
-        goals = [{"primary": s1, "secondary": s2} for s1 in sols["primary"][:3] for s2 in sols["secondary"][:3]]
-        goals = [g for g in goals if not motion.problems(g)] or goals[:1]
-        tr = motion.plan_free(list(arms), q_start, goals)
-    plan.add(Phase("reach", {a: _jt(tr[a].times, tr[a].q, _ramp(tr[a].times, width_start[a], w_open[a]))
-                             for a in arms}, "both grippers to their pre-grasps, opening", "ompl"))
-
+    P = _Pair(motion, {"primary": choice.primary, "secondary": choice.secondary}, choice.kind == "push", up)
+    G = P.G
+    plan.info = {"kind": choice.kind, "score": choice.score, **choice.info, "grip": {a: G[a].kind for a in ARMS},
+                 "grasps": {a: {"T_b1_g": G[a].T_b1_g, "width": G[a].width, "press": G[a].press} for a in ARMS}}
+    pre = _joint_reach(P, plan, q_start, width_start)
     at.append("approach")
-    # 2. straight approach to contact (the object is cut out: the fingers meet it); a push pair stops short
-    # of the faces by PUSH_STANDOFF
-    q, _ = plan.end_state()
-    touch = {a: (translate_along(G[a].T_b1_g, G[a].squeeze_dir, -PUSH_STANDOFF) if push else G[a].T_b1_g)
-             for a in arms}
-    with motion.context("cut", openings=w_open):
-        tr = motion.cartesian({a: (pre[a], touch[a]) for a in arms}, q)
-    plan.add(Phase("approach", {a: _jt(tr[a].times, tr[a].q, w_open[a]) for a in arms},
-                   f"straight {G['primary'].pre_dist * 100:.0f} cm approach to the object", "cartesian"))
-
+    touch = _joint_approach(P, plan, pre)
     at.append("squeeze")
-    # 3. grip: close (pinch) or squeeze (push)
-    q, _ = plan.end_state()
-    if push:
-        # driven press + gap past the contact; where an arm cannot go that far (the far end of its reach),
-        # half the gap, then the press alone
-        gap = {a: _face_gap(motion, G[a]) for a in arms}
-        tr, err = None, None
-        for f in (1.0, 0.5, 0.0):
-            S = {a: translate_along(G[a].T_b1_g, G[a].squeeze_dir, G[a].press + f * gap[a]) for a in arms}
-            try:
-                with motion.context("cut", openings=w_open):
-                    tr = motion.cartesian({a: (touch[a], S[a]) for a in arms}, q, min_duration=1.0)
-                break
-            except PlanFailure as e:
-                err = err or e
-            if max(gap.values()) < 1e-4:
-                break
-        if tr is None:
-            raise err
-        plan.add(Phase("squeeze", {a: _jt(tr[a].times, tr[a].q, w_open[a]) for a in arms},
-                       "fingertips pressed into both faces: the object is held between the grippers", "cartesian"))
-    else:
-        S = {a: G[a].T_b1_g for a in arms}
-        plan.add(Phase("close", {a: _still(q[a], w_open[a], CLOSED) for a in arms},
-                       "both grippers close (force limited)", "gripper"))
-
+    S = _joint_grip(P, plan, touch)
     at.append("lift")
-    # 4. lift: the object's motion, both grippers follow it
-    q, _ = plan.end_state()
-    tr, err = None, None
-    # near the top of the reach, lift less: down to LIFT_MIN, 5 mm over the 10 cm needed (the bench's joint
-    # lifts rise in reality as planned, within 0.1 mm)
-    for h in (lift, 0.85 * lift, max(0.74 * lift, 0.11), LIFT_MIN):
-        try:
-            lifts = object_lifts(motion, up, h)
-        except PlanFailure as e:
-            err = err or e
-            continue
-        for T_moves, how in lifts:  # the first one both arms can follow
-            try:
-                with motion.context("cut", openings=opening_hold):
-                    tr = motion.cartesian({a: T_moves @ S[a] for a in arms}, q)
-                break
-            except PlanFailure as e:
-                err = err or e
-        if tr is not None:
-            lift = h
-            break
-    if tr is None:
-        raise err
-    plan.add(Phase("lift", {a: _jt(tr[a].times, tr[a].q, w_hold[a]) for a in arms},
-                   f"object lifted {lift * 100:.0f} cm ({how}), both grippers following it", "cartesian"))
-    plan.info["object_motion"] = {"lift_m": lift, "how": how, "T_move_end": T_moves[-1], "waypoints": len(T_moves)}
-
+    T_moves = _joint_lift(P, plan, S, lift)
     # 5. hold (checked)
     q, _ = plan.end_state()
-    plan.add(Phase("hold", {a: _jt([0.0, HOLD_S], np.stack([q[a], q[a]]), w_hold[a]) for a in arms},
+    plan.add(Phase("hold", {a: _jt([0.0, HOLD_S], np.stack([q[a], q[a]]), P.w_hold[a]) for a in ARMS},
                    f"held up for {HOLD_S:g} s", "hold", check="joint-lift"))
-
     at.append("place")
     # 6. place, release, retreat
-    with motion.context("cut", openings=opening_hold):
-        tr = motion.cartesian({a: (T_moves @ S[a])[::-1] for a in arms}, q)
-    plan.add(Phase("place", {a: _jt(tr[a].times, tr[a].q, w_hold[a]) for a in arms},
+    with motion.context("cut", openings=P.opening_hold):
+        tr = motion.cartesian({a: (T_moves @ S[a])[::-1] for a in ARMS}, q)
+    plan.add(Phase("place", {a: _jt(tr[a].times, tr[a].q, P.w_hold[a]) for a in ARMS},
                    "object set back down", "cartesian"))
     at.append("retreat")
-    q, _ = plan.end_state()
-    if push:
-        # let go first: the squeeze undone (straight back out of the faces to where the fingertips first
-        # touched, the states the squeeze was checked through), so the fingertips stop pressing before the
-        # gripper moves along its approach (a tilted approach leaves upwards and, still pressing, would drag
-        # the object up with it)
-        U = {a: G[a].T_b1_g for a in arms}
-        with motion.context("cut", openings=w_open):
-            tr = motion.cartesian({a: (S[a], U[a]) for a in arms}, q, min_duration=0.6)
-        plan.add(Phase("release", {a: _jt(tr[a].times, tr[a].q, w_open[a]) for a in arms},
-                       "fingertips back out of both faces: the object rests on the table", "cartesian"))
-        q, _ = plan.end_state()
-        # back to the pre-grasps; where that line is blocked, straight up or further back out of the faces
-        tr, err, how = None, None, ""
-        for how, ends in (("to their pre-grasps", pre),
-                          ("straight up", {a: translate_along(U[a], up, RETREAT_UP) for a in arms}),
-                          ("back from the faces", {a: translate_along(U[a], G[a].squeeze_dir, -RETREAT_UP)
-                                                   for a in arms})):
-            try:
-                with motion.context("cut", openings=w_open):
-                    tr = motion.cartesian({a: (U[a], ends[a]) for a in arms}, q)
-                break
-            except PlanFailure as e:
-                err = PlanFailure(e.stage, f"{err.message}; {how}: {e.message}" if err else f"{how}: {e.message}")
-        if tr is None:
-            raise err
-        plan.add(Phase("retreat", {a: _jt(tr[a].times, tr[a].q, w_open[a]) for a in arms},
-                       f"both grippers back off {how}", "cartesian"))
+    if P.push:
+        _push_release(P, plan, S, pre)
     else:
-        plan.add(Phase("release", {a: _still(q[a], CLOSED, w_open[a]) for a in arms}, "both grippers open",
+        q, _ = plan.end_state()
+        plan.add(Phase("release", {a: _still(q[a], CLOSED, P.w_open[a]) for a in ARMS}, "both grippers open",
                        "gripper"))
         q, _ = plan.end_state()
-        with motion.context("cut", openings=w_open):
-            tr = motion.cartesian({a: (S[a], pre[a]) for a in arms}, q)
-        plan.add(Phase("retreat", {a: _jt(tr[a].times, tr[a].q, w_open[a]) for a in arms},
+        with motion.context("cut", openings=P.w_open):
+            tr = motion.cartesian({a: (S[a], pre[a]) for a in ARMS}, q)
+        plan.add(Phase("retreat", {a: _jt(tr[a].times, tr[a].q, P.w_open[a]) for a in ARMS},
                        "both grippers back off to their pre-grasps", "cartesian"))
     return plan
+
+
+def _joint_reach(P: _Pair, plan: TaskPlan, q_start: dict, width_start: dict) -> dict:
+    """1. Both pre-grasps reached together (12 DoF), the object an obstacle. Returns the pre-grasp poses."""
+    motion, G = P.motion, P.G
+    pre = {a: _pre(motion, G[a]) for a in ARMS}
+    with motion.context("map", openings=P.w_open):
+        sols = {a: _approachable(motion, a, _goal_ik(motion, a, pre[a], [G[a].q_pre, q_start[a], G[a].q]), pre[a],
+                                 G[a].T_b1_g) for a in ARMS}
+        goals = [{"primary": s1, "secondary": s2} for s1 in sols["primary"][:3] for s2 in sols["secondary"][:3]]
+        goals = [g for g in goals if not motion.problems(g)] or goals[:1]
+        tr = motion.plan_free(list(ARMS), q_start, goals)
+    plan.add(Phase("reach", {a: _jt(tr[a].times, tr[a].q, _ramp(tr[a].times, width_start[a], P.w_open[a]))
+                             for a in ARMS}, "both grippers to their pre-grasps, opening", "ompl"))
+    return pre
+
+
+def _joint_approach(P: _Pair, plan: TaskPlan, pre: dict) -> dict:
+    """2. Straight approach to contact (the object is cut out: the fingers meet it); a push pair stops short
+    of the faces by PUSH_STANDOFF. Returns the poses reached."""
+    motion, G = P.motion, P.G
+    q, _ = plan.end_state()
+    touch = {a: (translate_along(G[a].T_b1_g, G[a].squeeze_dir, -PUSH_STANDOFF) if P.push else G[a].T_b1_g)
+             for a in ARMS}
+    with motion.context("cut", openings=P.w_open):
+        tr = motion.cartesian({a: (pre[a], touch[a]) for a in ARMS}, q)
+    plan.add(Phase("approach", {a: _jt(tr[a].times, tr[a].q, P.w_open[a]) for a in ARMS},
+                   f"straight {G['primary'].pre_dist * 100:.0f} cm approach to the object", "cartesian"))
+    return touch
+
+
+def _squeeze_strategies(P: _Pair, touch: dict, q: dict) -> list[Strategy]:
+    """A push pair's squeezes, in order: the press plus the gap to the faces past the contact; where an arm
+    cannot go that far (the far end of its reach), half the gap, then the press alone (only the first when
+    there is no gap). Each attempt returns ``(squeeze poses, trajectories)``."""
+    gap = {a: _face_gap(P.motion, P.G[a]) for a in ARMS}
+
+    def attempt(f):
+        S = {a: translate_along(P.G[a].T_b1_g, P.G[a].squeeze_dir, P.G[a].press + f * gap[a]) for a in ARMS}
+        with P.motion.context("cut", openings=P.w_open):
+            return S, P.motion.cartesian({a: (touch[a], S[a]) for a in ARMS}, q, min_duration=1.0)
+
+    steps = (("press and the gap", 1.0), ("press and half the gap", 0.5), ("press alone", 0.0))
+    if max(gap.values()) < 1e-4:
+        steps = steps[:1]
+    return [Strategy(name, partial(attempt, f)) for name, f in steps]
+
+
+def _joint_grip(P: _Pair, plan: TaskPlan, touch: dict) -> dict:
+    """3. Grip: close (pinch) or squeeze (push). Returns the gripper poses that hold the object."""
+    q, _ = plan.end_state()
+    if not P.push:
+        plan.add(Phase("close", {a: _still(q[a], P.w_open[a], CLOSED) for a in ARMS},
+                       "both grippers close (force limited)", "gripper"))
+        return {a: P.G[a].T_b1_g for a in ARMS}
+    try:
+        _, (S, tr) = first_success(_squeeze_strategies(P, touch, q))
+    except StrategiesFailed as e:
+        raise e.first from None
+    plan.add(Phase("squeeze", {a: _jt(tr[a].times, tr[a].q, P.w_open[a]) for a in ARMS},
+                   "fingertips pressed into both faces: the object is held between the grippers", "cartesian"))
+    return S
+
+
+def _lift_strategies(P: _Pair, S: dict, q: dict, lift: float) -> list[Strategy]:
+    """The joint lift's heights, in order: ``lift``, then less near the top of the reach, down to LIFT_MIN
+    (5 mm over the 10 cm needed). Each attempt tries the object's lifts of that height (:func:`object_lifts`)
+    in order and returns ``(trajectories, object motion (K,4,4), how, height)`` of the first both arms can
+    follow; it fails with the first reason when none is."""
+
+    def follow(T_moves):
+        with P.motion.context("cut", openings=P.opening_hold):
+            return P.motion.cartesian({a: T_moves @ S[a] for a in ARMS}, q), T_moves
+
+    def attempt(h):
+        try:
+            how, (tr, T_moves) = first_success(Strategy(how, partial(follow, T))
+                                               for T, how in object_lifts(P.motion, P.up, h))
+        except StrategiesFailed as e:
+            raise e.first from None
+        return tr, T_moves, how, h
+
+    return [Strategy(f"lift {h * 100:.1f} cm", partial(attempt, h))
+            for h in (lift, 0.85 * lift, max(0.74 * lift, 0.11), LIFT_MIN)]
+
+
+def _joint_lift(P: _Pair, plan: TaskPlan, S: dict, lift: float) -> np.ndarray:
+    """4. Lift: the object's motion, both grippers follow it. Returns the object's motion (K, 4, 4)."""
+    q, _ = plan.end_state()
+    try:
+        _, (tr, T_moves, how, lift) = first_success(_lift_strategies(P, S, q, lift))
+    except StrategiesFailed as e:
+        raise e.first from None
+    plan.add(Phase("lift", {a: _jt(tr[a].times, tr[a].q, P.w_hold[a]) for a in ARMS},
+                   f"object lifted {lift * 100:.0f} cm ({how}), both grippers following it", "cartesian"))
+    plan.info["object_motion"] = {"lift_m": lift, "how": how, "T_move_end": T_moves[-1], "waypoints": len(T_moves)}
+    return T_moves
+
+
+def _push_retreat_strategies(P: _Pair, U: dict, pre: dict, q: dict) -> list[Strategy]:
+    """A push pair's back-offs once the squeeze is undone, in order: to the pre-grasps; where that line is
+    blocked, straight up, or further back out of the faces. Each attempt returns the trajectories."""
+
+    def attempt(ends):
+        with P.motion.context("cut", openings=P.w_open):
+            return P.motion.cartesian({a: (U[a], ends[a]) for a in ARMS}, q)
+
+    return [Strategy("to their pre-grasps", partial(attempt, pre)),
+            Strategy("straight up", partial(attempt, {a: translate_along(U[a], P.up, RETREAT_UP) for a in ARMS})),
+            Strategy("back from the faces", partial(attempt, {a: translate_along(U[a], P.G[a].squeeze_dir,
+                                                                                 -RETREAT_UP) for a in ARMS}))]
+
+
+def _push_release(P: _Pair, plan: TaskPlan, S: dict, pre: dict) -> None:
+    """6. A push pair lets go: the squeeze undone, then the back-off (:func:`_push_retreat_strategies`)."""
+    # let go first: the squeeze undone (straight back out of the faces to where the fingertips first
+    # touched, the states the squeeze was checked through), so the fingertips stop pressing before the
+    # gripper moves along its approach (a tilted approach leaves upwards and, still pressing, would drag
+    # the object up with it)
+    q, _ = plan.end_state()
+    U = {a: P.G[a].T_b1_g for a in ARMS}
+    with P.motion.context("cut", openings=P.w_open):
+        tr = P.motion.cartesian({a: (S[a], U[a]) for a in ARMS}, q, min_duration=0.6)
+    plan.add(Phase("release", {a: _jt(tr[a].times, tr[a].q, P.w_open[a]) for a in ARMS},
+                   "fingertips back out of both faces: the object rests on the table", "cartesian"))
+    q, _ = plan.end_state()
+    try:
+        how, tr = first_success(_push_retreat_strategies(P, U, pre, q))
+    except StrategiesFailed as e:
+        raise e.combined() from None
+    plan.add(Phase("retreat", {a: _jt(tr[a].times, tr[a].q, P.w_open[a]) for a in ARMS},
+                   f"both grippers back off {how}", "cartesian"))
 
 
 MAKE_WAY_TURNS = (1.2, -1.2, 0.6, -0.6)  # rad about the secondary's base joint (joint 1), tried in order
@@ -439,26 +541,30 @@ def plan_handover(motion: TaskMotion, choice: HandoverChoice, q_start: dict, wid
     # the waiting secondary is in the primary's way to the object or up from it (an object beside the
     # secondary's base): it first turns about its base joint, out of the way, and takes the object over
     # from there
+    try:
+        return first_success(_make_way_strategies(motion, choice, q_start, width_start, object_points, up))[1]
+    except StrategiesFailed:
+        raise first from None
+
+
+def _make_way_strategies(motion: TaskMotion, choice: HandoverChoice, q_start: dict, width_start: dict,
+                         object_points: np.ndarray, up) -> list[Strategy]:
+    """The secondary's turns out of the primary's way (``MAKE_WAY_TURNS``, in order). Each attempt returns
+    the whole plan: the turn (a free motion from a start free in the map), then the hand-over from there."""
     w_sec = width_start["secondary"]
-    lo, hi = motion.robot.lower, motion.robot.upper
-    for turn in MAKE_WAY_TURNS:
+
+    def attempt(turn):
         q_aside = np.asarray(q_start["secondary"], dtype=np.float64).copy()
         q_aside[0] += turn
-        if not lo[0] <= q_aside[0] <= hi[0]:
-            continue
+        if not motion.robot.lower[0] <= q_aside[0] <= motion.robot.upper[0]:
+            raise PlanFailure("reach", "the turn is beyond the base joint's limits")
         q_from = {**q_start, "secondary": q_aside}
         with motion.context("map", openings={"primary": width_start["primary"], "secondary": w_sec}):
-            if motion.problems(q_from):
-                continue
-            try:
-                way = motion.plan_free(["secondary"], q_start, [{"secondary": q_aside}])["secondary"]
-            except PlanFailure:
-                continue
-        at = ["reach"]
-        try:
-            rest = _handover(motion, choice, q_from, width_start, object_points, up, at)
-        except PlanFailure:
-            continue
+            why = motion.problems(q_from)
+            if why:
+                raise PlanFailure("validation", f"the turned secondary meets the scene: {why[0]}")
+            way = motion.plan_free(["secondary"], q_start, [{"secondary": q_aside}])["secondary"]
+        rest = _handover(motion, choice, q_from, width_start, object_points, up, ["reach"])
         plan = TaskPlan({a: np.asarray(q, float) for a, q in q_start.items()}, dict(width_start), info=rest.info)
         plan.add(Phase("make-way", {"secondary": _jt(way.times, way.q, w_sec)},
                        f"the secondary turns {np.degrees(turn):+.0f} deg about its base, out of the primary's way",
@@ -467,209 +573,313 @@ def plan_handover(motion: TaskMotion, choice: HandoverChoice, q_start: dict, wid
             plan.add(ph)
         plan.info["make_way_rad"] = float(turn)
         return plan
-    raise first from None
+
+    return [Strategy(f"turn {np.degrees(t):+.0f} deg", partial(attempt, t)) for t in MAKE_WAY_TURNS]
+
+
+@dataclass
+class _Handover:
+    """A hand-over's fixed inputs: the grasps, the gripper openings and the carried object."""
+
+    motion: TaskMotion
+    choice: HandoverChoice
+    object_points: np.ndarray  # (M, 3) where the object lies, b1
+    up: np.ndarray  # (3,) up in b1
+    q_start: dict
+    width_start: dict
+    pick: GraspSpec = field(init=False)  # the primary's grasp where the object lies
+    gt: GraspSpec = field(init=False)  # the primary's grasp at the transfer pose
+    rec: GraspSpec = field(init=False)  # the receiver's grasp at the transfer pose
+    wg: float = field(init=False)  # m: the primary's opening to pick
+    wr: float = field(init=False)  # m: the receiver's opening
+    wl: float = field(init=False)  # m: the primary's opening as it lets go
+    cw_g: float = field(init=False)
+    cw_r: float = field(init=False)
+    near_pad: float = field(init=False)
+
+    def __post_init__(self):
+        c = self.choice
+        self.pick, self.gt, self.rec = c.pick, c.giver_transfer, c.receiver
+        self.wg, self.wr = self.pick.width, self.rec.width
+        self.wl = min(self.gt.width, self.wg)  # the giver lets go opening this far (no wider than it picked)
+        self.cw_g = self.pick.contact_width or 0.0  # the closed fingers' opening on the object
+        self.cw_r = self.rec.contact_width or 0.0
+        # as the last resort (the carry, a receiver at the edge of its reach), the carried object's box is
+        # grown by about half the free-motion margin less
+        self.near_pad = OBJECT_PADDING - 0.5 * (self.motion.world.margin - CONTACT_MARGIN) - 0.002
 
 
 def _handover(motion, choice, q_start, width_start, object_points, up, at) -> TaskPlan:
     up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=np.float64)
     plan = TaskPlan({a: np.asarray(q, float) for a, q in q_start.items()}, dict(width_start))
-    pick, gt, rec = choice.pick, choice.giver_transfer, choice.receiver
-    wg, wr = pick.width, rec.width
-    wl = min(gt.width, wg)  # the giver lets go opening this far (no wider than it picked)
-    cw_g = pick.contact_width or 0.0
-    cw_r = rec.contact_width or 0.0
+    H = _Handover(motion, choice, object_points, up, q_start, width_start)
     plan.info = {"score": choice.score, **choice.info, "T_move": choice.T_move,
                  "transfer_centre_b1": (choice.T_move @ np.r_[object_points.mean(0), 1.0])[:3],
-                 "grasps": {"pick": {"T_b1_g": pick.T_b1_g, "width": wg},
-                            "giver_transfer": {"T_b1_g": gt.T_b1_g},
-                            "receiver": {"T_b1_g": rec.T_b1_g, "width": wr}}}
-
-    # 1-3. primary picks
-    pre_pick = _pre(motion, pick)
-    with motion.context("map", openings={"primary": wg, "secondary": width_start["secondary"]}):
-        sols = _approachable(motion, "primary", _goal_ik(motion, "primary", pre_pick, [pick.q_pre, q_start["primary"],
-                                                                                      pick.q]), pre_pick, pick.T_b1_g)
-        goals = [{"primary": s} for s in sols[:4]]
-        tr = motion.plan_free(["primary"], q_start, goals)["primary"]
-    plan.add(Phase("reach", {"primary": _jt(tr.times, tr.q, _ramp(tr.times, width_start["primary"], wg))},
-                   "primary to its pre-grasp, opening", "ompl"))
-    at.append("approach")
-    q, _ = plan.end_state()
-    with motion.context("cut", openings={"primary": wg}):
-        tr = motion.cartesian({"primary": (pre_pick, pick.T_b1_g)}, q)["primary"]
-    plan.add(Phase("approach", {"primary": _jt(tr.times, tr.q, wg)}, "straight approach", "cartesian"))
-    q, _ = plan.end_state()
-    q_grasp = q["primary"].copy()
-    plan.add(Phase("grasp", {"primary": _still(q_grasp, wg, CLOSED)}, "primary closes (force limited)", "gripper"))
-
+                 "grasps": {"pick": {"T_b1_g": H.pick.T_b1_g, "width": H.wg},
+                            "giver_transfer": {"T_b1_g": H.gt.T_b1_g},
+                            "receiver": {"T_b1_g": H.rec.T_b1_g, "width": H.wr}}}
+    q_grasp = _handover_pick(H, plan, at)
     at.append("lift")
-    # 4-5. lift, then carry to the transfer pose (object attached to the primary)
     attach = ("primary", q_grasp, object_points)
-    # off the table: the object rests on it at the start, so it is checked by itself (its points along the
-    # motion against the map) rather than attached (it would touch the table at once); in the directions
-    # of _lift_directions, higher, or less far (the carry that follows is planned with the object
-    # attached, clear of the table).
-    dirs = _lift_directions(motion, pick.T_b1_g, object_points, up)
-    with motion.context("cut", openings={"primary": cw_g}):
-        if motion.problems(q):  # the closed fingers meet points the segment left out: the object's own
-            motion.cut_grasped(pick.T_b1_g, wg)
-    def try_lifts(q, pad=OBJECT_PADDING):
-        """The first lift (in the order of HANDOVER_LIFTS x dirs) the primary can follow with the secondary
-        at q, the carried object's box grown by ``pad``: (trajectory or None, distance, how, first error)."""
-        err = None
-        for dist in HANDOVER_LIFTS:
-            for how, d in dirs:
-                n_steps = max(7, int(np.ceil(dist / 0.01)) + 1)
-                moves = np.stack([np.eye(4)] * n_steps)
-                moves[:, :3, 3] = np.linspace(0.0, dist, n_steps)[:, None] * d
-                try:
-                    problems = motion.object_clear(moves, up=up)
-                    if problems:
-                        raise PlanFailure("validation", problems[0])
-                    with motion.context("cut", openings={"primary": cw_g}):
-                        tr = motion.cartesian({"primary": (pick.T_b1_g, moves[-1] @ pick.T_b1_g)}, q)["primary"]
-                    # the carry is planned with the object attached, kept clear by the free-motion margin: an
-                    # object lifted beside a taller neighbour still touches it, so lift higher
-                    with motion.context("attached", openings={"primary": cw_g}, attach=attach, object_padding=pad):
-                        why = motion.problems({"primary": tr.q[-1], "secondary": q["secondary"]})
-                    if why:
-                        raise PlanFailure("validation", f"lifted {dist * 100:.0f} cm ({how}), the carried object is "
-                                                        f"still too close to the scene: {why[0]}")
-                    return tr, dist, how, err
-                except PlanFailure as e:
-                    err = err or e
-        return None, 0.0, "", err
-
-    tr, dist, how, err = try_lifts(q)
-    carry_pad = OBJECT_PADDING
-    if tr is None:
-        # at the top of its reach the arm lifts the object no higher than where it is still within the carry's
-        # margin of a neighbour: as the last resort, the carry keeps the object about half the free-motion
-        # margin less from the scene (the receiver's last resort too; on the task bench a can 49 cm out rose
-        # 6 cm, 1.6 cm over the small box beside it)
-        carry_pad = OBJECT_PADDING - 0.5 * (motion.world.margin - CONTACT_MARGIN) - 0.002
-        tr, dist, how, _ = try_lifts(q, carry_pad)
-        if tr is not None:
-            plan.info["carry_padding_m"] = carry_pad
-    if tr is None:
-        raise PlanFailure(err.stage, f"{err.message} (and {len(HANDOVER_LIFTS) * len(dirs) - 1} other lifts: "
-                                     f"{', '.join(h for h, _ in dirs[1:])}; up to {max(HANDOVER_LIFTS) * 100:.0f} cm)")
-    plan.add(Phase("lift", {"primary": _jt(tr.times, tr.q, CLOSED)}, f"lifted {dist * 100:.0f} cm ({how})",
-                   "cartesian"))
+    carry_pad = _handover_lift(H, plan, attach)
     at.append("transfer")
-    q, _ = plan.end_state()
-    w0 = width_start["secondary"]
-    pre_rec = _pre(motion, rec)
-    with motion.context("attached", openings={"primary": cw_g, "secondary": w0}, attach=attach,
-                        object_padding=carry_pad):
-        sols = _goal_ik(motion, "primary", gt.T_b1_g, [gt.q, q["primary"]])
-        if all(any("secondary" in w for w in motion.problems({**q, "primary": s_})) for s_ in sols[:4]):
-            # the transfer pose brings the object against the waiting secondary: it goes to its pre-grasp
-            # in the same motion (out of the way, to where it takes the object over)
-            # (opening on the way: checked at the wider of its two openings)
-            with motion.context("attached", openings={"primary": cw_g, "secondary": max(w0, wr)}, attach=attach,
-                                object_padding=carry_pad):
-                sols_r = _goal_ik(motion, "secondary", pre_rec, [rec.q_pre, q_start["secondary"], rec.q])
-                goals = [{"primary": s1, "secondary": s2} for s1 in sols[:3] for s2 in sols_r[:3]]
-                goals = [g_ for g_ in goals if not motion.problems(g_)] or goals[:1]
-                tr = motion.plan_free(["primary", "secondary"], q, goals)
-            ts = tr["secondary"].times
-            plan.add(Phase("transfer", {"primary": _jt(tr["primary"].times, tr["primary"].q, CLOSED),
-                                        "secondary": _jt(ts, tr["secondary"].q, _ramp(ts, w0, wr))},
-                           "object carried to the transfer pose; the secondary to its pre-grasp, out of its way",
-                           "ompl"))
-        else:
-            tr = motion.plan_free(["primary"], q, [{"primary": s} for s in sols[:4]])["primary"]
-            plan.add(Phase("transfer", {"primary": _jt(tr.times, tr.q, CLOSED)}, "object carried to the transfer pose",
-                           "ompl"))
-
+    pre_rec = _handover_transfer(H, plan, attach, carry_pad)
     at.append("receive-reach")
-    # 6-8. the secondary takes it
-    q, w_now = plan.end_state()
-    w0 = w_now["secondary"]  # as it was (or opened to the receiver's width on a two-arm transfer)
-    # the pre-grasp, or further back along the same line where its open fingers are within the free-motion
-    # margin of the carried object (a pre-grasp the grasping stage kept short near the edge of the reach)
-    back = pre_rec[:3, 3] - rec.T_b1_g[:3, 3]
-    back = back / max(np.linalg.norm(back), 1e-9)
-    # As the last resort (a receiver at the edge of its reach, its pre-grasp short and no further one
-    # reachable), its open fingers may come within about half the free-motion margin of the carried object
-    # there (its box shrunk): the straight approach that follows passes the fingers that near it anyway
-    # (the receiver's clearance, 1 cm a side).
-    sols, err, pad = None, None, OBJECT_PADDING
-    near_pad = OBJECT_PADDING - 0.5 * (motion.world.margin - CONTACT_MARGIN) - 0.002
-    for extra, pad in ((0.0, OBJECT_PADDING), (0.02, OBJECT_PADDING), (0.04, OBJECT_PADDING), (0.0, near_pad)):
-        with motion.context("attached", openings={"primary": cw_g, "secondary": wr}, attach=attach,
-                            object_padding=pad):
-            T_pre = pre_rec.copy()
-            T_pre[:3, 3] += extra * back
-            try:
-                seeds = [q["secondary"], rec.q_pre, q_start["secondary"], rec.q]
-                cand = _approachable(motion, "secondary", _goal_ik(motion, "secondary", T_pre, seeds), T_pre, rec.T_b1_g)
-            except PlanFailure as e:
-                err = err or e
-                continue
-            # the goals open (checked at the receiver's opening); the way there keeps the gripper as it was:
-            # the transfer pose may bring the object near the waiting secondary, whose fingers, opened where
-            # it stands, would touch it before it moves
-            ok = [s_ for s_ in cand if not motion.problems({**q, "secondary": s_})]
-        if ok or sols is None:
-            sols, pre_used, pad_used = np.stack(ok or [cand[0]]), T_pre, pad
-        if ok:
-            break
-    if sols is None:
-        raise err
-    pre_rec = pre_used
-    try:
-        with motion.context("attached", openings={"primary": cw_g, "secondary": w0}, attach=attach,
-                            object_padding=pad_used):
-            tr = motion.plan_free(["secondary"], q, [{"secondary": s} for s in sols[:4]])["secondary"]
-        times = np.concatenate([tr.times, tr.times[-1] + np.array([0.5 * CLOSE_S, CLOSE_S])])
-        jt = _jt(times, np.concatenate([tr.q, [tr.q[-1], tr.q[-1]]]), np.r_[np.full(len(tr.times), w0), 0.5 * (w0 + wr), wr])
-    except PlanFailure:  # where the goal needs the fingers open already (they straddle the object's edge)
-        with motion.context("attached", openings={"primary": cw_g, "secondary": wr}, attach=attach,
-                            object_padding=pad_used):
-            tr = motion.plan_free(["secondary"], q, [{"secondary": s} for s in sols[:4]])["secondary"]
-        jt = _jt(tr.times, tr.q, _ramp(tr.times, w0, wr))
-    plan.add(Phase("receive-reach", {"secondary": jt}, "secondary to its pre-grasp at the transfer pose, opening",
-                   "ompl"))
+    pre_rec = _receive_reach(H, plan, attach, pre_rec)
     at.append("receive-approach")
     q, _ = plan.end_state()
-    with motion.context("cut", openings={"primary": cw_g, "secondary": wr}):
-        tr = motion.cartesian({"secondary": (pre_rec, rec.T_b1_g)}, q)["secondary"]
-    plan.add(Phase("receive-approach", {"secondary": _jt(tr.times, tr.q, wr)}, "secondary's straight approach",
+    with motion.context("cut", openings={"primary": H.cw_g, "secondary": H.wr}):
+        tr = motion.cartesian({"secondary": (pre_rec, H.rec.T_b1_g)}, q)["secondary"]
+    plan.add(Phase("receive-approach", {"secondary": _jt(tr.times, tr.q, H.wr)}, "secondary's straight approach",
                    "cartesian"))
     q, _ = plan.end_state()
-    plan.add(Phase("receive-grasp", {"secondary": _still(q["secondary"], wr, CLOSED)},
+    plan.add(Phase("receive-grasp", {"secondary": _still(q["secondary"], H.wr, CLOSED)},
                    "secondary closes (force limited)", "gripper"))
-
-    # 9-11. the primary lets go and backs off; the secondary holds (checked)
-    q, _ = plan.end_state()
-    plan.add(Phase("release", {"primary": _still(q["primary"], CLOSED, wl)}, "primary opens", "gripper"))
-    q, _ = plan.end_state()
-    held_pts = object_points @ choice.T_move[:3, :3].T + choice.T_move[:3, 3]
-    held = ("secondary", q["secondary"], held_pts)
-    at.append("retreat")
-    tr, dist, how = _giver_retreat(motion, gt, q, held, up, {"primary": wl, "secondary": cw_r})
-    plan.add(Phase("retreat", {"primary": _jt(tr.times, tr.q, wl)},
-                   f"primary backs off {dist * 100:.0f} cm ({how})", "cartesian"))
-    at.append("home")
-    # the primary goes back to its start; the object, now in the secondary's gripper, is an obstacle
-    q, _ = plan.end_state()
-    with motion.context("attached", openings={"primary": wl, "secondary": cw_r}, attach=held):
-        home_blocked = motion.problems({"primary": q_start["primary"], "secondary": q["secondary"]})
-        if not home_blocked:
-            tr = motion.plan_free(["primary"], q, [{"primary": q_start["primary"]}])["primary"]
-    if home_blocked:  # the object, now held by the secondary, is where the primary started: it stays backed off
-        plan.info["home"] = f"skipped: the primary's start pose meets the held object ({home_blocked[0]})"
-    else:
-        plan.add(Phase("home", {"primary": _jt(tr.times, tr.q, wl)}, "primary back to its start pose", "ompl"))
-    q, _ = plan.end_state()
-    plan.add(Phase("hold", {"secondary": _jt([0.0, HOLD_S], np.stack([q["secondary"]] * 2), CLOSED)},
-                   f"secondary holds the object alone for {HOLD_S:g} s", "hold", check="handover"))
+    _giver_lets_go(H, plan, at)
     # where each closed gripper's fingers rest on the object (the whole-plan validation takes them there,
     # as the phases above were planned): the primary from its grasp to its release, the secondary after
     held_by = {"primary": ("grasp", "lift", "transfer", "receive-reach", "receive-approach", "receive-grasp", "release"),
                "secondary": ("receive-grasp", "release", "retreat", "home", "hold")}
     for ph in plan.phases:
-        ph.resting = {a: w for a, w in (("primary", cw_g), ("secondary", cw_r)) if ph.name in held_by[a] and w > 0}
+        ph.resting = {a: w for a, w in (("primary", H.cw_g), ("secondary", H.cw_r))
+                      if ph.name in held_by[a] and w > 0}
     return plan
+
+
+def _handover_pick(H: _Handover, plan: TaskPlan, at: list) -> np.ndarray:
+    """1-3. The primary reaches, approaches and closes on the object. Returns its grasp configuration."""
+    motion, pick = H.motion, H.pick
+    pre_pick = _pre(motion, pick)
+    with motion.context("map", openings={"primary": H.wg, "secondary": H.width_start["secondary"]}):
+        sols = _approachable(motion, "primary", _goal_ik(motion, "primary", pre_pick,
+                                                         [pick.q_pre, H.q_start["primary"], pick.q]),
+                             pre_pick, pick.T_b1_g)
+        goals = [{"primary": s} for s in sols[:4]]
+        tr = motion.plan_free(["primary"], H.q_start, goals)["primary"]
+    plan.add(Phase("reach", {"primary": _jt(tr.times, tr.q, _ramp(tr.times, H.width_start["primary"], H.wg))},
+                   "primary to its pre-grasp, opening", "ompl"))
+    at.append("approach")
+    q, _ = plan.end_state()
+    with motion.context("cut", openings={"primary": H.wg}):
+        tr = motion.cartesian({"primary": (pre_pick, pick.T_b1_g)}, q)["primary"]
+    plan.add(Phase("approach", {"primary": _jt(tr.times, tr.q, H.wg)}, "straight approach", "cartesian"))
+    q, _ = plan.end_state()
+    q_grasp = q["primary"].copy()
+    plan.add(Phase("grasp", {"primary": _still(q_grasp, H.wg, CLOSED)}, "primary closes (force limited)", "gripper"))
+    return q_grasp
+
+
+def _handover_lift_strategies(H: _Handover, q: dict, dirs: list, attach: tuple, pad: float) -> list[Strategy]:
+    """The pick's lifts (``HANDOVER_LIFTS`` x ``dirs``, in that order) with the carried object's box grown by
+    ``pad``. Each attempt returns ``(trajectory, distance, how)``: the primary follows it, the object's
+    motion is clear of the map, and at its end the attached object is clear of the scene with the
+    secondary at ``q``."""
+    motion, pick = H.motion, H.pick
+
+    def attempt(dist, how, d):
+        n_steps = max(7, int(np.ceil(dist / 0.01)) + 1)
+        moves = np.stack([np.eye(4)] * n_steps)
+        moves[:, :3, 3] = np.linspace(0.0, dist, n_steps)[:, None] * d
+        problems = motion.object_clear(moves, up=H.up)
+        if problems:
+            raise PlanFailure("validation", problems[0])
+        with motion.context("cut", openings={"primary": H.cw_g}):
+            tr = motion.cartesian({"primary": (pick.T_b1_g, moves[-1] @ pick.T_b1_g)}, q)["primary"]
+        # the carry is planned with the object attached, kept clear by the free-motion margin: an
+        # object lifted beside a taller neighbour still touches it, so lift higher
+        with motion.context("attached", openings={"primary": H.cw_g}, attach=attach, object_padding=pad):
+            why = motion.problems({"primary": tr.q[-1], "secondary": q["secondary"]})
+        if why:
+            raise PlanFailure("validation", f"lifted {dist * 100:.0f} cm ({how}), the carried object is "
+                                            f"still too close to the scene: {why[0]}")
+        return tr, dist, how
+
+    return [Strategy(f"{dist * 100:.0f} cm {how}", partial(attempt, dist, how, d))
+            for dist in HANDOVER_LIFTS for how, d in dirs]
+
+
+def _carry_padding_strategies(H: _Handover, q: dict, dirs: list, attach: tuple) -> list[Strategy]:
+    """The carry's padding, in order: the free-motion padding, then (the last resort: at the top of its
+    reach the arm lifts the object no higher than where it is still within the carry's margin of a
+    neighbour) ``near_pad``. Each attempt returns ``(trajectory, distance, how, padding)`` of the first lift
+    (:func:`_handover_lift_strategies`) and fails with the first reason."""
+
+    def attempt(pad):
+        try:
+            _, r = first_success(_handover_lift_strategies(H, q, dirs, attach, pad))
+        except StrategiesFailed as e:
+            raise e.first from None
+        return (*r, pad)
+
+    return [Strategy("object padding", partial(attempt, OBJECT_PADDING)),
+            Strategy("reduced object padding", partial(attempt, H.near_pad))]
+
+
+def _handover_lift(H: _Handover, plan: TaskPlan, attach: tuple) -> float:
+    """4. The lift off the table. Returns the padding of the carried object's box the carry keeps."""
+    motion = H.motion
+    q, _ = plan.end_state()
+    # off the table: the object rests on it at the start, so it is checked by itself (its points along the
+    # motion against the map) rather than attached (it would touch the table at once); in the directions
+    # of _lift_directions, higher, or less far (the carry that follows is planned with the object
+    # attached, clear of the table).
+    dirs = _lift_directions(motion, H.pick.T_b1_g, H.object_points, H.up)
+    with motion.context("cut", openings={"primary": H.cw_g}):
+        if motion.problems(q):  # the closed fingers meet points the segment left out: the object's own
+            motion.cut_grasped(H.pick.T_b1_g, H.wg)
+    try:
+        name, (tr, dist, how, carry_pad) = first_success(_carry_padding_strategies(H, q, dirs, attach))
+    except StrategiesFailed as e:
+        err = e.first
+        raise PlanFailure(err.stage, f"{err.message} (and {len(HANDOVER_LIFTS) * len(dirs) - 1} other lifts: "
+                                     f"{', '.join(h for h, _ in dirs[1:])}; up to {max(HANDOVER_LIFTS) * 100:.0f} cm)"
+                          ) from None
+    if name == "reduced object padding":
+        plan.info["carry_padding_m"] = carry_pad
+    plan.add(Phase("lift", {"primary": _jt(tr.times, tr.q, CLOSED)}, f"lifted {dist * 100:.0f} cm ({how})",
+                   "cartesian"))
+    return carry_pad
+
+
+def _handover_transfer(H: _Handover, plan: TaskPlan, attach: tuple, carry_pad: float) -> np.ndarray:
+    """5. The carry to the transfer pose (object attached to the primary). Returns the receiver's pre-grasp."""
+    motion, rec = H.motion, H.rec
+    q, _ = plan.end_state()
+    w0 = H.width_start["secondary"]
+    pre_rec = _pre(motion, rec)
+    with motion.context("attached", openings={"primary": H.cw_g, "secondary": w0}, attach=attach,
+                        object_padding=carry_pad):
+        sols = _goal_ik(motion, "primary", H.gt.T_b1_g, [H.gt.q, q["primary"]])
+        if not all(any("secondary" in w for w in motion.problems({**q, "primary": s_})) for s_ in sols[:4]):
+            tr = motion.plan_free(["primary"], q, [{"primary": s} for s in sols[:4]])["primary"]
+            plan.add(Phase("transfer", {"primary": _jt(tr.times, tr.q, CLOSED)}, "object carried to the transfer pose",
+                           "ompl"))
+            return pre_rec
+        # the transfer pose brings the object against the waiting secondary: it goes to its pre-grasp
+        # in the same motion (out of the way, to where it takes the object over)
+        # (opening on the way: checked at the wider of its two openings)
+        with motion.context("attached", openings={"primary": H.cw_g, "secondary": max(w0, H.wr)}, attach=attach,
+                            object_padding=carry_pad):
+            sols_r = _goal_ik(motion, "secondary", pre_rec, [rec.q_pre, H.q_start["secondary"], rec.q])
+            goals = [{"primary": s1, "secondary": s2} for s1 in sols[:3] for s2 in sols_r[:3]]
+            goals = [g_ for g_ in goals if not motion.problems(g_)] or goals[:1]
+            tr = motion.plan_free(["primary", "secondary"], q, goals)
+        ts = tr["secondary"].times
+        plan.add(Phase("transfer", {"primary": _jt(tr["primary"].times, tr["primary"].q, CLOSED),
+                                    "secondary": _jt(ts, tr["secondary"].q, _ramp(ts, w0, H.wr))},
+                       "object carried to the transfer pose; the secondary to its pre-grasp, out of its way",
+                       "ompl"))
+    return pre_rec
+
+
+def _receiver_pregrasp_strategies(H: _Handover, q: dict, attach: tuple, pre_rec: np.ndarray,
+                                  fallback: list) -> list[Strategy]:
+    """The receiver's pre-grasps, in order: its own; 2 cm, then 4 cm further back along the same line, where
+    its open fingers are within the free-motion margin of the carried object (a pre-grasp the grasping stage
+    kept short near the edge of the reach); as the last resort (a receiver at the edge of its reach, its
+    pre-grasp short and no further one reachable), its own with the carried object's box shrunk to
+    ``near_pad``: the straight approach that follows passes the fingers that near it anyway.
+
+    Each attempt returns ``(solutions (S, J), pre-grasp, padding)`` with the solutions from which the
+    approach stays on one IK branch and whose goal is free; one with solutions none of which is free fails,
+    the first such is appended to ``fallback`` as ``(solutions[:1], pre-grasp, padding)``."""
+    motion, rec = H.motion, H.rec
+    back = pre_rec[:3, 3] - rec.T_b1_g[:3, 3]
+    back = back / max(np.linalg.norm(back), 1e-9)
+
+    def attempt(extra, pad):
+        with motion.context("attached", openings={"primary": H.cw_g, "secondary": H.wr}, attach=attach,
+                            object_padding=pad):
+            T_pre = pre_rec.copy()
+            T_pre[:3, 3] += extra * back
+            seeds = [q["secondary"], rec.q_pre, H.q_start["secondary"], rec.q]
+            cand = _approachable(motion, "secondary", _goal_ik(motion, "secondary", T_pre, seeds), T_pre, rec.T_b1_g)
+            # the goals open (checked at the receiver's opening); the way there keeps the gripper as it was:
+            # the transfer pose may bring the object near the waiting secondary, whose fingers, opened where
+            # it stands, would touch it before it moves
+            why = [motion.problems({**q, "secondary": s_}) for s_ in cand]
+        ok = [s_ for s_, w in zip(cand, why) if not w]
+        if not ok:
+            if not fallback:
+                fallback.append((np.stack([cand[0]]), T_pre, pad))
+            raise PlanFailure("validation", f"no pre-grasp solution is free: {why[0][0]}")
+        return np.stack(ok), T_pre, pad
+
+    return [Strategy(name, partial(attempt, extra, pad))
+            for name, extra, pad in (("its pre-grasp", 0.0, OBJECT_PADDING),
+                                     ("2 cm further back", 0.02, OBJECT_PADDING),
+                                     ("4 cm further back", 0.04, OBJECT_PADDING),
+                                     ("its pre-grasp, the object's box shrunk", 0.0, H.near_pad))]
+
+
+def _receive_reach_strategies(H: _Handover, q: dict, attach: tuple, sols: np.ndarray, pad: float,
+                              w0: float) -> list[Strategy]:
+    """The receiver's way to its pre-grasp, in order: its gripper as it was, opening once there; where the
+    goal needs the fingers open already (they straddle the object's edge), opening on the way. Each attempt
+    returns the secondary's joint trajectory."""
+    motion = H.motion
+
+    def plan_to_goals(opening):
+        with motion.context("attached", openings={"primary": H.cw_g, "secondary": opening}, attach=attach,
+                            object_padding=pad):
+            return motion.plan_free(["secondary"], q, [{"secondary": s} for s in sols[:4]])["secondary"]
+
+    def open_there():
+        tr = plan_to_goals(w0)
+        times = np.concatenate([tr.times, tr.times[-1] + np.array([0.5 * CLOSE_S, CLOSE_S])])
+        return _jt(times, np.concatenate([tr.q, [tr.q[-1], tr.q[-1]]]),
+                   np.r_[np.full(len(tr.times), w0), 0.5 * (w0 + H.wr), H.wr])
+
+    def open_on_the_way():
+        tr = plan_to_goals(H.wr)
+        return _jt(tr.times, tr.q, _ramp(tr.times, w0, H.wr))
+
+    return [Strategy("opening at the pre-grasp", open_there), Strategy("opening on the way", open_on_the_way)]
+
+
+def _receive_reach(H: _Handover, plan: TaskPlan, attach: tuple, pre_rec: np.ndarray) -> np.ndarray:
+    """6. The secondary to its pre-grasp at the transfer pose. Returns the pre-grasp used."""
+    q, w_now = plan.end_state()
+    w0 = w_now["secondary"]  # as it was (or opened to the receiver's width on a two-arm transfer)
+    fallback: list = []
+    try:
+        _, (sols, pre_used, pad_used) = first_success(_receiver_pregrasp_strategies(H, q, attach, pre_rec, fallback))
+    except StrategiesFailed as e:
+        if not fallback:  # no pre-grasp had a solution
+            raise e.first from None
+        sols, pre_used, pad_used = fallback[0]
+    try:
+        _, jt = first_success(_receive_reach_strategies(H, q, attach, sols, pad_used, w0))
+    except StrategiesFailed as e:
+        raise e.last from None
+    plan.add(Phase("receive-reach", {"secondary": jt}, "secondary to its pre-grasp at the transfer pose, opening",
+                   "ompl"))
+    return pre_used
+
+
+def _giver_lets_go(H: _Handover, plan: TaskPlan, at: list) -> None:
+    """9-11. The primary lets go, backs off and goes home (where it can); the secondary holds (checked)."""
+    motion = H.motion
+    q, _ = plan.end_state()
+    plan.add(Phase("release", {"primary": _still(q["primary"], CLOSED, H.wl)}, "primary opens", "gripper"))
+    q, _ = plan.end_state()
+    held_pts = H.object_points @ H.choice.T_move[:3, :3].T + H.choice.T_move[:3, 3]
+    held = ("secondary", q["secondary"], held_pts)
+    at.append("retreat")
+    tr, dist, how = _giver_retreat(motion, H.gt, q, held, H.up, {"primary": H.wl, "secondary": H.cw_r})
+    plan.add(Phase("retreat", {"primary": _jt(tr.times, tr.q, H.wl)},
+                   f"primary backs off {dist * 100:.0f} cm ({how})", "cartesian"))
+    at.append("home")
+    # the primary goes back to its start; the object, now in the secondary's gripper, is an obstacle
+    q, _ = plan.end_state()
+    with motion.context("attached", openings={"primary": H.wl, "secondary": H.cw_r}, attach=held):
+        home_blocked = motion.problems({"primary": H.q_start["primary"], "secondary": q["secondary"]})
+        if not home_blocked:
+            tr = motion.plan_free(["primary"], q, [{"primary": H.q_start["primary"]}])["primary"]
+    if home_blocked:  # the object, now held by the secondary, is where the primary started: it stays backed off
+        plan.info["home"] = f"skipped: the primary's start pose meets the held object ({home_blocked[0]})"
+    else:
+        plan.add(Phase("home", {"primary": _jt(tr.times, tr.q, H.wl)}, "primary back to its start pose", "ompl"))
+    q, _ = plan.end_state()
+    plan.add(Phase("hold", {"secondary": _jt([0.0, HOLD_S], np.stack([q["secondary"]] * 2), CLOSED)},
+                   f"secondary holds the object alone for {HOLD_S:g} s", "hold", check="handover"))

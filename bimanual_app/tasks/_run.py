@@ -161,227 +161,321 @@ def run_task(opts: TaskOptions) -> TaskResult:
         staging.abort()
 
 
-def _run_loaded(opts, scene, inputs, robot, staging: OutputDir, timings: dict) -> TaskResult:
-    from bimanual_app.hardware import approve_plan, save_plan, write_approval
-    from bimanual_app.simulation import estimated_shapes, table_from_segments
+def _new_record(opts, scene, inputs) -> dict:
+    """task.json's content before anything is decided: inputs and options, no object, no plan."""
+    return {"format": 1, "task": opts.task, "scene": scene.name, "success": False, "reason": "",
+            "object": None, "object_reason": "", "plans": [], "approval": None,
+            "inputs": {"calibration": str(inputs.paths.calibration), "cloud": str(inputs.paths.cloud),
+                       "segments": str(inputs.paths.segments), "grasps": str(inputs.paths.grasps)},
+            "options": {"truth_objects": opts.truth_objects, "execute": opts.execute,
+                        "plan_time_s": opts.plan_time, "speed": opts.speed},
+            "warnings": list(inputs.warnings)}
 
+
+def _fail(opts, res: TaskResult, stage: str, reason: str) -> TaskResult:
+    """Mark the result failed at ``stage`` for ``reason`` (in the result and its record) and return it."""
+    res.success, res.failed_stage = False, stage
+    res.reason = reason
+    res.record.update(success=False, reason=reason, failed_stage=stage)
+    _log(opts, f"FAILED at {stage}: {reason}")
+    return res
+
+
+def _set_object(res: TaskResult, oid, why: str) -> None:
+    """The object the task is about, and why, in the result and its record."""
+    res.object_id, res.object_reason = oid, why
+    res.record.update(object=oid, object_reason=why)
+
+
+def _choose_object(opts, inputs, res: TaskResult):
+    """The candidates of the task and those of the chosen object: ``(cands, mine, oid)``; ``mine`` is empty
+    (and the result failed at "grasp") when no object has a reachable candidate."""
     from ._grasps import choose, handover_candidates, joint_candidates
-    from ._motion import BASE_RADIUS, PlanFailure, TaskMotion, robot_points_mask
-    from ._planners import plan_handover, plan_joint_grasp
-    from ._preview import preview_plan
 
-    rec: dict = {"format": 1, "task": opts.task, "scene": scene.name, "success": False, "reason": "",
-                 "object": None, "object_reason": "", "plans": [], "approval": None,
-                 "inputs": {"calibration": str(inputs.paths.calibration), "cloud": str(inputs.paths.cloud),
-                            "segments": str(inputs.paths.segments), "grasps": str(inputs.paths.grasps)},
-                 "options": {"truth_objects": opts.truth_objects, "execute": opts.execute,
-                             "plan_time_s": opts.plan_time, "speed": opts.speed},
-                 "warnings": list(inputs.warnings)}
-    res = TaskResult(opts.task, False, "", None, record=rec)
-
-    def fail(stage: str, reason: str) -> TaskResult:
-        res.success, res.failed_stage = False, stage
-        res.reason = reason
-        rec.update(success=False, reason=reason, failed_stage=stage)
-        _log(opts, f"FAILED at {stage}: {reason}")
-        return res
-
-    # ---- which object
     known = sorted(int(k) for k in np.unique(inputs.labels) if k >= 0)
     gpath = str(inputs.paths.grasps)
     cands = (joint_candidates if opts.task == "joint-grasp" else handover_candidates)(inputs.grasps, gpath)
     mine, why = choose(cands, opts.object_id, opts.task, gpath, known)
     oid = mine[0].object_id if mine else opts.object_id
-    res.object_id, res.object_reason = oid, why
-    rec.update(object=oid, object_reason=why)
+    _set_object(res, oid, why)
     if oid is not None:
         _log(opts, f"object {oid}: {why}")
     if not mine:
         what = "two-arm grasp pair" if opts.task == "joint-grasp" else "hand-over (giver and receiver grasps)"
         if oid is None:
-            return fail("grasp", f"{why}: the objects are out of reach of the arms or too small/large to grasp "
-                                 f"(see {gpath})")
-        return fail("grasp", f"object {oid} has no reachable {what} in {gpath}: it is out of reach, or no "
-                             "collision-free grasp exists")
+            _fail(opts, res, "grasp", f"{why}: the objects are out of reach of the arms or too small/large to "
+                                      f"grasp (see {gpath})")
+        else:
+            _fail(opts, res, "grasp", f"object {oid} has no reachable {what} in {gpath}: it is out of reach, or "
+                                      "no collision-free grasp exists")
+    return cands, mine, oid
 
-    # ---- start configuration: the arms' own (hardware) or the rest pose
-    hw = None
-    if opts.execute == "hardware":
-        t = time.perf_counter()
-        try:
-            hw = _connect_hardware(opts, robot)
-            fb = hw.read()
-            q_start = {a: np.asarray(fb[a].q, dtype=np.float64) for a in ARMS}
-            width_start = {a: float(fb[a].gripper_m) if fb[a].gripper_m is not None else OPEN_START for a in ARMS}
-        except Exception as e:
-            if hw is not None:
-                hw.close()
-            timings["hardware"] = time.perf_counter() - t
-            rec["hardware"] = {"ok": False, "error": str(e), "connected": False}
-            return fail("hardware", f"cannot connect to the arms ({e}); nothing was planned or sent")
-        timings["hardware_connect"] = time.perf_counter() - t
-    else:
+
+def _start_state(opts, robot, res: TaskResult, timings: dict):
+    """The start configuration: the arms' own (hardware) or the rest pose. Returns ``(hw, q_start,
+    width_start)``; ``q_start`` is None (and the result failed at "hardware") when the arms cannot be
+    reached."""
+    if opts.execute != "hardware":
         from bimanual_app.planning import default_ready
 
-        q_start = {a: default_ready(robot) for a in ARMS}
-        width_start = {a: OPEN_START for a in ARMS}
-
+        return None, {a: default_ready(robot) for a in ARMS}, {a: OPEN_START for a in ARMS}
+    t = time.perf_counter()
+    hw = None
     try:
-        # ---- plan: the chosen object's candidates in order; without --object, the next objects (by their
-        # best score) when none of the first one's can be planned
-        t_start = time.perf_counter()
-        table = table_from_segments(inputs.points, inputs.labels, inputs.seg_extras)
-        robot_pts = robot_points_mask(inputs.points, inputs.labels, np.stack([np.zeros(3), inputs.T_b1_b2[:3, 3]]),
-                                      table.normal, -table.d)
-        if robot_pts.any():
-            rec["planning_map"] = {"robot_points_removed": int(robot_pts.sum()),
-                                   "note": f"background points within {BASE_RADIUS} m of a base axis (the arms "
-                                           "seen by the cameras) are not obstacles"}
-        order = [oid]
-        if opts.object_id is None:
-            order += [o for o in dict.fromkeys(c.object_id for c in cands) if o != oid][:MAX_FALLBACK_OBJECTS]
-        # each candidate that plans and validates is previewed on the reconstruction (never on the ground
-        # truth: that is only for judging); the first that passes is the task's plan. A failed preview moves
-        # on to the next candidate, up to MAX_PREVIEWS previews; if none passes, the first failed one is
-        # reported (and approved as 'fail').
-        motion, tried, attempts = None, [], []
-        chosen = failed = None  # _Attempt
-        t_preview = 0.0
-        select_record = opts.record and not opts.truth_objects
-        for o in order:
-            shapes, warns = estimated_shapes(inputs.points, inputs.labels, table, ids=[o])
-            rec["warnings"] += warns
-            if o not in shapes:
-                tried.append((o, PlanFailure("input", f"no collision body from its points ({'; '.join(warns)})"), 0))
-                continue
-            sh = shapes[o]
-            pts_o = sh.surface_points_b1()
-            motion_o = TaskMotion(robot, inputs.T_b1_b2, inputs.points[~robot_pts], pts_o,
-                                  inputs.points[inputs.labels == o], plan_time=opts.plan_time, speed=opts.speed,
-                                  body=sh, up=table.normal)
-            if motion is None:  # the first map built: the start must be free in it
-                problems = motion_o.problems(q_start)
-                if problems:
-                    return fail("start", "the arms' start configuration is in collision: " + "; ".join(problems[:3]))
-            motion = motion_o
-            errors = []
-            for k, c in enumerate([c for c in cands if c.object_id == o][:MAX_CANDIDATES]):
-                if len(attempts) >= MAX_PREVIEWS:
-                    break
-                try:
-                    if opts.task == "joint-grasp":
-                        plan = plan_joint_grasp(motion_o, c, q_start, width_start, up=table.normal)
-                    else:
-                        plan = plan_handover(motion_o, c, q_start, width_start, pts_o, up=table.normal)
-                    plan.info["candidate_rank"] = k
-                    plan.info["candidate"] = {"grasps_json": c.info.get("source"), "score": round(float(c.score), 4)}
-                    timeline = plan.timeline()
-                    try:  # the samples the preview and the hardware get
-                        motion_o.validate_timeline(timeline, plan.opening_spans())
-                    except PlanFailure as e:
-                        raise PlanFailure("validation", f"the assembled plan failed validation: {e.message}") from None
-                except PlanFailure as e:
-                    errors.append(e)
-                    _log(opts, f"candidate {k + 1} of object {o}: {e}")
-                    continue
-                t = time.perf_counter()
-                _log(opts, f"object {o}, candidate {k + 1}: previewing {len(plan.phases)} phases "
-                           f"({plan.duration:.1f} s) in PyBullet")
-                pv = preview_plan(plan, inputs, robot, o, gui=opts.gui and not opts.truth_objects,
-                                  record=select_record, frame_size=tuple(opts.frame_size),
-                                  log=None if opts.quiet else (lambda m: _log(opts, m)))
-                t_preview += time.perf_counter() - t
-                att = _Attempt(o, k, plan, motion_o, timeline, pv)
-                attempts.append(att)
-                if pv.success:
-                    chosen = att
-                    break
-                failed = failed or att
-                errors.append(PlanFailure("preview", f"the physics preview failed: {pv.reason}"))
-                _log(opts, f"candidate {k + 1} of object {o}: the physics preview failed: {pv.reason}")
-            if chosen is not None or len(attempts) >= MAX_PREVIEWS:
-                if chosen is None:
-                    tried.append((o, errors[0], len(errors)))
-                break
-            tried.append((o, errors[0], len(errors)) if errors else (o, PlanFailure("grasp", "no candidate"), 0))
-        timings["plan"] = time.perf_counter() - t_start - t_preview
-        if attempts:
-            timings["preview"] = t_preview
-        if motion is not None:
-            rec["planning"] = {k: (round(v, 3) if isinstance(v, float) else v) for k, v in motion.stats.items()}
-        if tried:
-            rec["objects_tried"] = [{"object": o, "reason": e.message, "candidates": n} for o, e, n in tried]
-        if attempts:
-            rec["previews_tried"] = [{"object": a.object_id, "candidate_rank": a.rank, "success": a.preview.success,
-                                      "reason": a.preview.reason} for a in attempts]
-        pick = chosen or failed
-        if pick is None:
-            o, e, n_c = tried[0]
-            stage = {"reach": "reach", "cartesian": "reach", "plan": "plan", "validation": "plan"}.get(e.stage, e.stage)
-            more = f" ({n_c} grasp candidates tried)" if n_c > 1 else ""
-            others = f"; {len(tried) - 1} other object(s) could not be planned either" if len(tried) > 1 else ""
-            return fail(stage, f"no valid plan for object {o}{more}: {e.message}{others}")
-        plan, motion, timeline = pick.plan, pick.motion, pick.timeline
-        if pick.object_id != oid:
-            first = tried[0][1]
-            why = (f"object {pick.object_id}, the next best: the best-scoring object {oid} "
-                   + ("failed its physics preview" if first.stage == "preview" else "could not be planned")
-                   + f" ({first.message})")
-            oid = pick.object_id
-            res.object_id, res.object_reason = oid, why
-            rec.update(object=oid, object_reason=why)
-            _log(opts, why)
-        rec["plans"] = plan.summary()
-        rec["plan"] = {"duration_s": round(plan.duration, 3),
-                       "n_waypoints": {a: len(tr) for a, tr in timeline.items()}, "info": plan.info}
-        save_plan(staging.path("plan.npz"), timeline)
+        hw = _connect_hardware(opts, robot)
+        fb = hw.read()
+        q_start = {a: np.asarray(fb[a].q, dtype=np.float64) for a in ARMS}
+        width_start = {a: float(fb[a].gripper_m) if fb[a].gripper_m is not None else OPEN_START for a in ARMS}
+    except Exception as e:
+        if hw is not None:
+            hw.close()
+        timings["hardware"] = time.perf_counter() - t
+        res.record["hardware"] = {"ok": False, "error": str(e), "connected": False}
+        _fail(opts, res, "hardware", f"cannot connect to the arms ({e}); nothing was planned or sent")
+        return None, None, None
+    timings["hardware_connect"] = time.perf_counter() - t
+    return hw, q_start, width_start
 
-        # ---- the physics preview reported (and approved): the chosen plan's on the reconstruction, or with
-        # --truth-objects the same plan in the ground-truth world
-        pv = pick.preview
-        if opts.truth_objects:
-            t = time.perf_counter()
-            _log(opts, f"previewing the chosen plan ({len(plan.phases)} phases) against the ground truth")
-            pv = preview_plan(plan, inputs, robot, oid, truth=True, gui=opts.gui, record=opts.record,
-                              frame_size=tuple(opts.frame_size), log=None if opts.quiet else (lambda m: _log(opts, m)))
-            timings["preview_truth"] = time.perf_counter() - t
-        res.preview = pv.to_json()
-        rec["preview"] = res.preview
-        if pv.recorder is not None and pv.recorder.frames:
-            pv.recorder.save_gif(staging.path("preview.gif"))
-            pv.recorder.save_keyframes(staging.staging)
-        approval = approve_plan(timeline, "pass" if pv.success else "fail",
-                                {"task": opts.task, "scene": scene.name, "object": oid, "reason": pv.reason,
-                                 "checks": pv.checks, "world": "ground truth" if opts.truth_objects else "estimate"})
-        write_approval(staging.path("approval.json"), approval)
-        rec["approval"] = to_jsonable(approval.__dict__)
-        if opts.compare_truth and not opts.truth_objects:
-            t = time.perf_counter()
-            pvt = preview_plan(plan, inputs, robot, oid, truth=True, record=False)
-            timings["preview_truth"] = time.perf_counter() - t
-            rec["preview_truth"] = pvt.to_json()
-            _log(opts, f"the same plan against the ground truth: {'success' if pvt.success else 'failure'} - "
-                       f"{pvt.reason}")
+
+@dataclass
+class _Search:
+    """The search over objects and candidates (see :func:`_plan_objects`): its fixed inputs and its state."""
+
+    table: object  # the table plane (``simulation.table_from_segments``)
+    robot_pts: np.ndarray  # (N,) bool: the cloud's points on the arms, not obstacles
+    q_start: dict  # arm -> (J,) start configuration
+    width_start: dict  # arm -> gripper width at the start (m)
+    motion: object = None  # the last TaskMotion built
+    tried: list = field(default_factory=list)  # (object id, first PlanFailure, candidates tried)
+    attempts: list = field(default_factory=list)  # _Attempt: every candidate previewed
+    chosen: _Attempt | None = None  # the first whose preview passed
+    failed: _Attempt | None = None  # the first whose preview failed
+    t_preview: float = 0.0
+    start_problems: list = field(default_factory=list)  # the start configuration's collisions, if any
+
+
+def _plan_candidate(opts, motion_o, c, k: int, q_start, width_start, pts_o, up):
+    """One candidate planned and its timeline validated: ``(plan, timeline)``; raises PlanFailure."""
+    from ._motion import PlanFailure
+    from ._planners import plan_handover, plan_joint_grasp
+
+    if opts.task == "joint-grasp":
+        plan = plan_joint_grasp(motion_o, c, q_start, width_start, up=up)
+    else:
+        plan = plan_handover(motion_o, c, q_start, width_start, pts_o, up=up)
+    plan.info["candidate_rank"] = k
+    plan.info["candidate"] = {"grasps_json": c.info.get("source"), "score": round(float(c.score), 4)}
+    timeline = plan.timeline()
+    try:  # the samples the preview and the hardware get
+        motion_o.validate_timeline(timeline, plan.opening_spans())
+    except PlanFailure as e:
+        raise PlanFailure("validation", f"the assembled plan failed validation: {e.message}") from None
+    return plan, timeline
+
+
+def _try_object(opts, inputs, robot, o: int, cands, rec: dict, s: _Search) -> None:
+    """Plan and preview object ``o``'s candidates in order until one passes its preview (``s.chosen``) or
+    ``MAX_PREVIEWS`` previews were made; records what was tried in ``s``."""
+    from bimanual_app.simulation import estimated_shapes
+
+    from ._motion import PlanFailure, TaskMotion
+    from ._preview import preview_plan
+
+    table, q_start = s.table, s.q_start
+    shapes, warns = estimated_shapes(inputs.points, inputs.labels, table, ids=[o])
+    rec["warnings"] += warns
+    if o not in shapes:
+        s.tried.append((o, PlanFailure("input", f"no collision body from its points ({'; '.join(warns)})"), 0))
+        return
+    sh = shapes[o]
+    pts_o = sh.surface_points_b1()
+    motion_o = TaskMotion(robot, inputs.T_b1_b2, inputs.points[~s.robot_pts], pts_o,
+                          inputs.points[inputs.labels == o], plan_time=opts.plan_time, speed=opts.speed,
+                          body=sh, up=table.normal)
+    if s.motion is None:  # the first map built: the start must be free in it
+        s.start_problems = motion_o.problems(q_start)
+        if s.start_problems:
+            return
+    s.motion = motion_o
+    errors = []
+    for k, c in enumerate([c for c in cands if c.object_id == o][:MAX_CANDIDATES]):
+        if len(s.attempts) >= MAX_PREVIEWS:
+            break
+        try:
+            plan, timeline = _plan_candidate(opts, motion_o, c, k, q_start, s.width_start, pts_o, table.normal)
+        except PlanFailure as e:
+            errors.append(e)
+            _log(opts, f"candidate {k + 1} of object {o}: {e}")
+            continue
+        t = time.perf_counter()
+        _log(opts, f"object {o}, candidate {k + 1}: previewing {len(plan.phases)} phases "
+                   f"({plan.duration:.1f} s) in PyBullet")
+        pv = preview_plan(plan, inputs, robot, o, gui=opts.gui and not opts.truth_objects,
+                          record=opts.record and not opts.truth_objects, frame_size=tuple(opts.frame_size),
+                          log=None if opts.quiet else (lambda m: _log(opts, m)))
+        s.t_preview += time.perf_counter() - t
+        att = _Attempt(o, k, plan, motion_o, timeline, pv)
+        s.attempts.append(att)
+        if pv.success:
+            s.chosen = att
+            break
+        s.failed = s.failed or att
+        errors.append(PlanFailure("preview", f"the physics preview failed: {pv.reason}"))
+        _log(opts, f"candidate {k + 1} of object {o}: the physics preview failed: {pv.reason}")
+    if s.chosen is not None or len(s.attempts) >= MAX_PREVIEWS:
+        if s.chosen is None:
+            s.tried.append((o, errors[0], len(errors)))
+        return
+    s.tried.append((o, errors[0], len(errors)) if errors else (o, PlanFailure("grasp", "no candidate"), 0))
+
+
+def _plan_objects(opts, inputs, robot, cands, oid, q_start, width_start, rec: dict, timings: dict) -> _Search:
+    """Plan: the chosen object's candidates in order; without --object, the next objects (by their best
+    score) when none of the first one's can be planned.
+
+    Each candidate that plans and validates is previewed on the reconstruction (never on the ground truth:
+    that is only for judging); the first that passes is the task's plan. A failed preview moves on to the
+    next candidate, up to MAX_PREVIEWS previews; if none passes, the first failed one is reported (and
+    approved as 'fail')."""
+    from bimanual_app.simulation import table_from_segments
+
+    from ._motion import BASE_RADIUS, robot_points_mask
+
+    t_start = time.perf_counter()
+    table = table_from_segments(inputs.points, inputs.labels, inputs.seg_extras)
+    robot_pts = robot_points_mask(inputs.points, inputs.labels, np.stack([np.zeros(3), inputs.T_b1_b2[:3, 3]]),
+                                  table.normal, -table.d)
+    if robot_pts.any():
+        rec["planning_map"] = {"robot_points_removed": int(robot_pts.sum()),
+                               "note": f"background points within {BASE_RADIUS} m of a base axis (the arms "
+                                       "seen by the cameras) are not obstacles"}
+    order = [oid]
+    if opts.object_id is None:
+        order += [o for o in dict.fromkeys(c.object_id for c in cands) if o != oid][:MAX_FALLBACK_OBJECTS]
+    s = _Search(table, robot_pts, q_start, width_start)
+    for o in order:
+        _try_object(opts, inputs, robot, o, cands, rec, s)
+        if s.start_problems:
+            return s
+        if s.chosen is not None or len(s.attempts) >= MAX_PREVIEWS:
+            break
+    timings["plan"] = time.perf_counter() - t_start - s.t_preview
+    if s.attempts:
+        timings["preview"] = s.t_preview
+    if s.motion is not None:
+        rec["planning"] = {k: (round(v, 3) if isinstance(v, float) else v) for k, v in s.motion.stats.items()}
+    if s.tried:
+        rec["objects_tried"] = [{"object": o, "reason": e.message, "candidates": n} for o, e, n in s.tried]
+    if s.attempts:
+        rec["previews_tried"] = [{"object": a.object_id, "candidate_rank": a.rank, "success": a.preview.success,
+                                  "reason": a.preview.reason} for a in s.attempts]
+    return s
+
+
+def _no_plan_failure(s: _Search) -> tuple[str, str]:
+    """``(stage, reason)`` of a search that planned nothing: the first object's first failure."""
+    o, e, n_c = s.tried[0]
+    stage = {"reach": "reach", "cartesian": "reach", "plan": "plan", "validation": "plan"}.get(e.stage, e.stage)
+    more = f" ({n_c} grasp candidates tried)" if n_c > 1 else ""
+    others = f"; {len(s.tried) - 1} other object(s) could not be planned either" if len(s.tried) > 1 else ""
+    return stage, f"no valid plan for object {o}{more}: {e.message}{others}"
+
+
+def _preview_and_approve(opts, scene, inputs, robot, pick: _Attempt, oid, res: TaskResult, staging: OutputDir,
+                         timings: dict):
+    """The physics preview reported (and approved): the chosen plan's on the reconstruction, or with
+    --truth-objects the same plan in the ground-truth world. Returns ``(preview, approval)``."""
+    from bimanual_app.hardware import approve_plan, write_approval
+
+    from ._preview import preview_plan
+
+    rec, plan = res.record, pick.plan
+    log = None if opts.quiet else (lambda m: _log(opts, m))
+    pv = pick.preview
+    if opts.truth_objects:
+        t = time.perf_counter()
+        _log(opts, f"previewing the chosen plan ({len(plan.phases)} phases) against the ground truth")
+        pv = preview_plan(plan, inputs, robot, oid, truth=True, gui=opts.gui, record=opts.record,
+                          frame_size=tuple(opts.frame_size), log=log)
+        timings["preview_truth"] = time.perf_counter() - t
+    res.preview = pv.to_json()
+    rec["preview"] = res.preview
+    if pv.recorder is not None and pv.recorder.frames:
+        pv.recorder.save_gif(staging.path("preview.gif"))
+        pv.recorder.save_keyframes(staging.staging)
+    approval = approve_plan(pick.timeline, "pass" if pv.success else "fail",
+                            {"task": opts.task, "scene": scene.name, "object": oid, "reason": pv.reason,
+                             "checks": pv.checks, "world": "ground truth" if opts.truth_objects else "estimate"})
+    write_approval(staging.path("approval.json"), approval)
+    rec["approval"] = to_jsonable(approval.__dict__)
+    if opts.compare_truth and not opts.truth_objects:
+        t = time.perf_counter()
+        pvt = preview_plan(plan, inputs, robot, oid, truth=True, record=False)
+        timings["preview_truth"] = time.perf_counter() - t
+        rec["preview_truth"] = pvt.to_json()
+        _log(opts, f"the same plan against the ground truth: {'success' if pvt.success else 'failure'} - "
+                   f"{pvt.reason}")
+    return pv, approval
+
+
+def _report_plan(opts, s: _Search, pick: _Attempt, oid, res: TaskResult, staging: OutputDir):
+    """Record the picked plan (and why another object than the best-scoring one, if so) and save plan.npz.
+    Returns the object id now planned for."""
+    from bimanual_app.hardware import save_plan
+
+    rec = res.record
+    if pick.object_id != oid:
+        first = s.tried[0][1]
+        why = (f"object {pick.object_id}, the next best: the best-scoring object {oid} "
+               + ("failed its physics preview" if first.stage == "preview" else "could not be planned")
+               + f" ({first.message})")
+        oid = pick.object_id
+        _set_object(res, oid, why)
+        _log(opts, why)
+    rec["plans"] = pick.plan.summary()
+    rec["plan"] = {"duration_s": round(pick.plan.duration, 3),
+                   "n_waypoints": {a: len(tr) for a, tr in pick.timeline.items()}, "info": pick.plan.info}
+    save_plan(staging.path("plan.npz"), pick.timeline)
+    return oid
+
+
+def _run_loaded(opts, scene, inputs, robot, staging: OutputDir, timings: dict) -> TaskResult:
+    res = TaskResult(opts.task, False, "", None, record=_new_record(opts, scene, inputs))
+    rec = res.record
+    cands, mine, oid = _choose_object(opts, inputs, res)
+    if not mine:
+        return res
+    hw, q_start, width_start = _start_state(opts, robot, res, timings)
+    if q_start is None:
+        return res
+    try:
+        s = _plan_objects(opts, inputs, robot, cands, oid, q_start, width_start, rec, timings)
+        if s.start_problems:
+            return _fail(opts, res, "start", "the arms' start configuration is in collision: "
+                                             + "; ".join(s.start_problems[:3]))
+        pick = s.chosen or s.failed
+        if pick is None:
+            return _fail(opts, res, *_no_plan_failure(s))
+        oid = _report_plan(opts, s, pick, oid, res, staging)
+        pv, approval = _preview_and_approve(opts, scene, inputs, robot, pick, oid, res, staging, timings)
         if not pv.success:
-            more = f" ({len(attempts)} plans previewed, none passed)" if len(attempts) > 1 else ""
-            return fail("preview", f"the physics preview failed: {pv.reason}{more}")
+            more = f" ({len(s.attempts)} plans previewed, none passed)" if len(s.attempts) > 1 else ""
+            return _fail(opts, res, "preview", f"the physics preview failed: {pv.reason}{more}")
         res.success, res.reason = True, f"preview passed: {pv.reason}"
         rec.update(success=True, reason=res.reason)
-
-        # ---- hardware
-        if hw is not None:
+        if hw is not None:  # ---- hardware
             t = time.perf_counter()
-            ok, msg = _execute(hw, timeline, approval, rec)
+            ok, msg = _execute(hw, pick.timeline, approval, rec)
             timings["hardware"] = time.perf_counter() - t
             if not ok:
-                return fail("hardware", msg)
+                return _fail(opts, res, "hardware", msg)
             res.reason = rec["reason"] = res.reason + "; executed on the hardware"
         return res
     except InputError:
         raise
     except Exception as e:  # a bug must not leave a half result; report it as a failed task with the trace
         rec["traceback"] = traceback.format_exc()[-4000:]
-        return fail("internal", f"{type(e).__name__}: {e}")
+        return _fail(opts, res, "internal", f"{type(e).__name__}: {e}")
     finally:
         if hw is not None:
             hw.close()

@@ -11,7 +11,7 @@ CLI: ``bijcr view RUN_DIR [--port P] [--host H] [--scene SCENE] [--timeout S]``.
 
 from __future__ import annotations
 
-import importlib
+from bimanual_app.lazy import lazy_exports
 
 _EXPORTS = {
     "load_run": "_read",
@@ -24,11 +24,4 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS)
 
 
-def __getattr__(name: str):
-    if name in _EXPORTS:
-        return getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__():
-    return __all__
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

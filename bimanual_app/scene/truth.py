@@ -1,7 +1,8 @@
-"""The true metric point cloud of a synthetic scene, in b1, with per-point object labels.
+"""The true metric point cloud of a scene with rendered ground truth, in b1, with per-point object labels.
 
-Recomputed from what the generator stored for evaluation: the ground-truth depth PNGs (table and
-object surfaces only), the masks, the images, the ee poses and the true hand-eye and base transforms.
+Recomputed from what a synthetic scene stores for evaluation (``ground_truth.yaml`` ``synthetic.depth``):
+the ground-truth depth PNGs (table and object surfaces only), the masks, the images, the ee poses and the
+true hand-eye and base transforms.
 Nothing here reads reconstruction.npz (whose point maps are perturbed on purpose).
 """
 
@@ -37,7 +38,7 @@ def ground_truth_cloud(scene_path: str | Path, stride: int = 1, max_depth: float
         (N,) int32: object id k (ground_truth.yaml ``objects``), -1 for the table and the floor. Robots
         and cameras are not part of it.
     """
-    from bimanual_app.scene import load_scene
+    from .load import load_scene
 
     scene = load_scene(scene_path)
     gt = scene.ground_truth
