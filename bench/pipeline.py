@@ -170,7 +170,7 @@ def main() -> int:
     tmp = out.with_suffix(".tmp")
     tmp.write_text(text)
     tmp.replace(out)
-    return 0 if all(r["stages"] for r in runs) else 1
+    return 0  # it ran: FAIL rows are data (a run whose stages could not be read shows as such in the table)
 
 
 if __name__ == "__main__":

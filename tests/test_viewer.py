@@ -302,8 +302,9 @@ def test_page_renders_in_headless_chromium_and_ctrl_c_stops_it(run_dir, tmp_path
 
     from bimanual_app.viewer._draw import segment_colors
 
-    # the grasps and cameras hidden: the gripper meshes of a grasp may cover an object from this viewpoint
-    p, url, lines = _start(run_dir, "--timeout", "600", "--hide", "grasps", "--hide", "cameras")
+    # the grasps, cameras and arms hidden: a gripper mesh may cover an object from this viewpoint, and the primary
+    # arm's shaded blue-grey is too near object 0's blue for the colour test below
+    p, url, lines = _start(run_dir, "--timeout", "600", "--hide", "grasps", "--hide", "cameras", "--hide", "arms")
     try:
         out = "".join(lines)
         port = int(url.rsplit(":", 1)[1])
@@ -315,10 +316,17 @@ def test_page_renders_in_headless_chromium_and_ctrl_c_stops_it(run_dir, tmp_path
         h, w = img.shape[:2]
         scene = img[int(h * 0.3):, : int(w * 0.7)]  # below the browser's notices, left of the GUI panel
         assert scene.std() > 20, "the 3D view is blank"
-        # the segments are drawn: pixels of both objects' colours and of the grey table
-        for colour in segment_colors(np.array([0, 1, -1])):
-            near = np.abs(scene - colour).max(axis=2) < 12
-            assert near.sum() > 100, f"no pixels of colour {colour} in the view"
+        # the segments are drawn: pixels of both objects' colours and of the grey table. The renderer lightens
+        # small points towards the white background (more or less with the load on the machine), so a pixel
+        # counts when it lies on the line from white to the colour, at least a quarter of the way
+        white = np.array([255.0, 255.0, 255.0])
+        # (with the cloud hidden: 0, 5 and about 330 such pixels, the last from the labels' grey anti-aliasing)
+        for colour, least in zip(segment_colors(np.array([0, 1, -1])), (300, 300, 5000)):
+            d = colour.astype(float) - white
+            t = (scene - white) @ d / (d @ d)
+            off = np.linalg.norm(scene - (white + t[..., None] * d), axis=2)
+            near = (t > 0.25) & (t < 1.15) & (off < 15)
+            assert near.sum() > least, f"too few pixels of colour {colour} (or lighter) in the view: {near.sum()}"
         p.send_signal(signal.SIGINT)  # Ctrl-C
         assert p.wait(timeout=60) == 130
         assert "interrupted" in p.stderr.read()
