@@ -114,9 +114,9 @@ def kinematic_camera_poses(result, arms: np.ndarray, T_b_e: np.ndarray) -> np.nd
 
 #: the point-map refinement's raw (independent-residual) sigmas are this many times too small: its
 #: residuals are correlated (neighbouring points share a view's depth warp). Set so that the RMS of
-#: error / sigma is about 1 on the 12 rendered scenes (paper noise) of bench/tasks.py seeds 0-11 (rotation
-#: and translation factors apply to each block's rotation and translation parts); bench/calibration.py
-#: ("Point-map refinement") reports how well they match the errors on its own scenes.
+#: error / sigma is about 1 on rendered scenes with the emulator's paper noise (rotation and translation
+#: factors apply to each block's rotation and translation parts; how they were set: docs/calibration.md);
+#: bench/calibration.py ("Point-map refinement") reports how well they match the errors on its own scenes.
 POINT_MAP_SIGMA_INFLATION = {"hand_eye_rotation": 10.0, "hand_eye_translation": 27.0, "scale": 20.0,
                              "T_b1_b2_rotation": 28.0, "T_b1_b2_translation": 38.0}
 

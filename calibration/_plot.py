@@ -52,31 +52,20 @@ def _shades(cmap_name: str, n: int):
     return [cmap(0.45 + 0.5 * k / max(n - 1, 1)) for k in range(n)]
 
 
-def save_calibration_figure(path: Path, result, T_b1_e: np.ndarray, T_w_c1: np.ndarray, T_b2_e: np.ndarray,
-                            T_w_c2: np.ndarray, points: np.ndarray | None, colors: np.ndarray | None,
-                            title: str = "", max_points: int = 12000) -> None:
-    """Draw and save the figure.
-
-    Args:
-        T_b1_e, T_w_c1, T_b2_e, T_w_c2: (N_m, 4, 4) the views used.
-        points, colors: metric cloud in b1 (K, 3) and (K, 3) uint8, or None.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig = plt.figure(figsize=(13, 6.2))
-    ax = fig.add_subplot(1, 2, 1, projection="3d")
-    top = fig.add_subplot(1, 2, 2)
+def _cloud_3d(ax, points: np.ndarray | None, colors: np.ndarray | None, max_points: int) -> np.ndarray | None:
+    """Scatter a random subset of the cloud in the 3D panel; returns the subset's indices (None without a cloud)."""
+    if points is None or not len(points):
+        return None
     rng = np.random.default_rng(0)
-    sub = None
-    if points is not None and len(points):
-        sub = rng.choice(len(points), size=min(max_points, len(points)), replace=False)
-        col = colors[sub] / 255.0 if colors is not None else "0.5"
-        s3 = sub[: max_points // 2]  # the 3D panel needs fewer points to read and is the slow one to draw
-        col3 = colors[s3] / 255.0 if colors is not None else "0.5"
-        ax.scatter(*points[s3].T, c=col3, s=0.4, alpha=0.4, linewidths=0, depthshade=False)
+    sub = rng.choice(len(points), size=min(max_points, len(points)), replace=False)
+    s3 = sub[: max_points // 2]  # the 3D panel needs fewer points to read and is the slow one to draw
+    col3 = colors[s3] / 255.0 if colors is not None else "0.5"
+    ax.scatter(*points[s3].T, c=col3, s=0.4, alpha=0.4, linewidths=0, depthshade=False)
+    return sub
+
+
+def _arms_and_cameras(ax, top, result, T_b1_e, T_w_c1, T_b2_e, T_w_c2) -> np.ndarray:
+    """End-effector triads, camera cones and bases in both panels; returns the camera positions (N, 3) in b1."""
     arms = ((1, T_b1_e, T_w_c1, result.T_e1_c1, np.eye(4), "Reds"),
             (2, T_b2_e, T_w_c2, result.T_e2_c2, result.T_b1_b2, "Blues"))
     cam_pos = []
@@ -95,13 +84,23 @@ def save_calibration_figure(path: Path, result, T_b1_e: np.ndarray, T_w_c1: np.n
         seg.triad(T_b1_b, 0.12, lw=2.5)
         ax.text(*T_b1_b[:3, 3] + [0, 0, -0.04], f"b{m}", fontsize=10, weight="bold")
     seg.draw(ax)
-    cam_pos = np.array(cam_pos)
-    allp = np.vstack([cam_pos, np.zeros((1, 3)), result.T_b1_b2[:3, 3][None]])
+    return np.array(cam_pos)
+
+
+def _bounds(cam_pos: np.ndarray, T_b1_b2: np.ndarray, points: np.ndarray | None,
+            sub: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """(3,) lower and upper corners of what the panels show: cameras, bases and the bulk of the cloud."""
+    allp = np.vstack([cam_pos, np.zeros((1, 3)), T_b1_b2[:3, 3][None]])
     lo, hi = allp.min(0) - 0.1, allp.max(0) + 0.1
     if points is not None and len(points):
         # the bulk of the cloud (far background points of a reconstruction would squash the picture)
         q = np.percentile(points[sub], [10, 90], axis=0)
         lo, hi = np.minimum(lo, q[0]), np.maximum(hi, q[1])
+    return lo, hi
+
+
+def _frame_3d(ax, lo: np.ndarray, hi: np.ndarray) -> None:
+    """Equal-aspect limits, labels, view and title of the 3D panel."""
     c, r = (lo + hi) / 2, (hi - lo).max() / 2 + 0.05
     ax.set_xlim(c[0] - r, c[0] + r)
     ax.set_ylim(c[1] - r, c[1] + r)
@@ -112,7 +111,11 @@ def save_calibration_figure(path: Path, result, T_b1_e: np.ndarray, T_w_c1: np.n
     ax.set_zlabel("z (m)")
     ax.view_init(elev=28, azim=-60)
     ax.set_title("end effectors (triads), calibrated cameras (cones) in b1\nprimary: reds, secondary: blues", fontsize=9)
-    # top view
+
+
+def _top_view(top, result, points: np.ndarray | None, colors: np.ndarray | None, sub: np.ndarray | None,
+              lo: np.ndarray, hi: np.ndarray) -> None:
+    """The cloud from above with both bases' x/y axes, limits, labels and title."""
     if points is not None and len(points):
         col = colors[sub] / 255.0 if colors is not None else "0.5"
         top.scatter(points[sub, 0], points[sub, 1], c=col, s=1.5, linewidths=0)
@@ -130,6 +133,30 @@ def save_calibration_figure(path: Path, result, T_b1_e: np.ndarray, T_w_c1: np.n
     top.set_ylabel("y (m)")
     top.set_title("metric point cloud from above (b1); cameras ^, end effectors o", fontsize=9)
     top.grid(alpha=0.3)
+
+
+def save_calibration_figure(path: Path, result, T_b1_e: np.ndarray, T_w_c1: np.ndarray, T_b2_e: np.ndarray,
+                            T_w_c2: np.ndarray, points: np.ndarray | None, colors: np.ndarray | None,
+                            title: str = "", max_points: int = 12000) -> None:
+    """Draw and save the figure.
+
+    Args:
+        T_b1_e, T_w_c1, T_b2_e, T_w_c2: (N_m, 4, 4) the views used.
+        points, colors: metric cloud in b1 (K, 3) and (K, 3) uint8, or None.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=(13, 6.2))
+    ax = fig.add_subplot(1, 2, 1, projection="3d")
+    top = fig.add_subplot(1, 2, 2)
+    sub = _cloud_3d(ax, points, colors, max_points)
+    cam_pos = _arms_and_cameras(ax, top, result, T_b1_e, T_w_c1, T_b2_e, T_w_c2)
+    lo, hi = _bounds(cam_pos, result.T_b1_b2, points, sub)
+    _frame_3d(ax, lo, hi)
+    _top_view(top, result, points, colors, sub, lo, hi)
     u = result.uncertainty or {}
     lines = [title] if title else []
     lines.append(f"method {result.method}  scale {result.scale:.4f}" + (

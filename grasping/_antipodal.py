@@ -227,6 +227,100 @@ def _frames(y: np.ndarray, up: np.ndarray, n_approach: int, rng: np.random.Gener
     return np.stack([x, Y, z], axis=-1)
 
 
+def _seed_pairs(P: np.ndarray, N: np.ndarray, rng: np.random.Generator, params: SamplerParams, max_cw: float,
+                n_pairs: int) -> tuple[list, list, list, int]:
+    """Antipodal contact pairs seeded from the points in a random order: lists of chunks of (first point,
+    partner point, closing axis (., 3)) and how many seeds were tried.
+
+    Several times the pairs wanted are tried (many rays find no antipodal partner), in chunks to cap memory.
+    """
+    M = len(P)
+    order = rng.permutation(M)
+    pairs_i, pairs_j, axes = [], [], []
+    chunk = max(32, min(3 * n_pairs, int(2e6 // max(M, 1))))
+    pos = 0
+    while pos < len(order) and sum(len(a) for a in pairs_i) < n_pairs and pos < 8 * n_pairs:
+        s = order[pos: pos + chunk]
+        pos += len(s)
+        j, y = _contact_pairs(P, N, s, params, max_cw)
+        ok = j >= 0
+        s = np.concatenate([s, s])
+        pairs_i.append(s[ok])
+        pairs_j.append(j[ok])
+        axes.append(y[ok])
+    return pairs_i, pairs_j, axes, pos
+
+
+def _closing_region(L: np.ndarray, in_x: np.ndarray, todo: np.ndarray, R: np.ndarray, C: np.ndarray, dlt: float,
+                    gripper: GripperModel, params: SamplerParams,
+                    max_cw: float) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+    """The candidates among ``todo`` whose closing region, pushed in by ``dlt``, holds enough of the object
+    within the stroke: ``(indices (k,), T_b1_g (k, 4, 4) centred on it, opening (k,), contact width (k,))``."""
+    fz = gripper.finger_z
+    # closing region at this depth: z_g = z_local - dlt in [finger_z[0], finger_z[1]]
+    zl = L[todo, :, 2] - dlt
+    reg = in_x[todo] & (zl >= fz[0]) & (zl <= fz[1])
+    cnt = reg.sum(axis=1)
+    yl = L[todo, :, 1]
+    ymin = np.where(reg, yl, np.inf).min(axis=1)
+    ymax = np.where(reg, yl, -np.inf).max(axis=1)
+    cw = ymax - ymin
+    ok = (cnt >= params.min_points) & (cw >= params.min_width) & (cw <= max_cw)
+    idx = np.nonzero(todo)[0][ok]
+    if len(idx) == 0:
+        return idx, None, None, None
+    shift = (0.5 * (ymin + ymax))[ok]
+    w = np.minimum(cw[ok] + 2 * params.clearance, gripper.max_width)
+    Rk = R[idx]
+    o = C[idx] + Rk[:, :, 1] * shift[:, None] + Rk[:, :, 2] * dlt
+    T = np.zeros((len(idx), 4, 4))
+    T[:, :3, :3], T[:, :3, 3], T[:, 3, 3] = Rk, o, 1.0
+    return idx, T, w, cw[ok]
+
+
+def _push_in(P: np.ndarray, R: np.ndarray, C: np.ndarray, gripper: GripperModel, collider: GripperCollider,
+             own: SceneOctree, others: SceneOctree, params: SamplerParams, max_cw: float) -> tuple[np.ndarray, ...]:
+    """Each candidate frame (R (n, 3, 3) at contact centre C (n, 3)) pushed in to the first of ``params.depths``
+    where its closing region holds the object and the swept gripper is free.
+
+    Returns ``(chosen depth index (n,) or -1, T_b1_g (n, 4, 4), opening (n,), contact width (n,), depth (n,),
+    any closing region held (n,) bool)``.
+    """
+    n = len(R)
+    # object points in each candidate's frame centred on the contact centre: (n, M, 3)
+    R32 = R.astype(np.float32)
+    L = np.matmul(P.astype(np.float32)[None], R32) - np.matmul(C.astype(np.float32)[:, None, :], R32)
+    fx = gripper.finger_x
+    in_x = (L[..., 0] >= fx[0]) & (L[..., 0] <= fx[1]) & (np.abs(L[..., 1]) <= gripper.max_width / 2)
+    chosen = np.full(n, -1)
+    T_best = np.zeros((n, 4, 4))
+    width = np.zeros(n)
+    cwidth = np.zeros(n)
+    depth = np.zeros(n)
+    region_any = np.zeros(n, dtype=bool)
+    for k, frac in enumerate(params.depths):
+        todo = chosen < 0
+        if not todo.any():
+            break
+        dlt = frac * gripper.finger_length
+        idx, T, w, cw = _closing_region(L, in_x, todo, R, C, dlt, gripper, params, max_cw)
+        region_any[idx] = True
+        if len(idx) == 0:
+            continue
+        # the swept fingers and palm against the object's own points (a fine octree: at most its resolution
+        # of inflation, less than the least clearance) ...
+        free = ~collider.collides(own, T, w, swept=True)
+        # ... and against the rest of the scene (table, neighbours), with a margin
+        free[free] = ~collider.collides(others, T[free], w[free], swept=True, margin=params.scene_margin)
+        good = idx[free]
+        chosen[good] = k
+        T_best[good] = T[free]
+        width[good] = w[free]
+        cwidth[good] = cw[free]
+        depth[good] = dlt
+    return chosen, T_best, width, cwidth, depth, region_any
+
+
 def sample_grasps(geo: ObjectGeometry, support: Support, gripper: GripperModel, collider: GripperCollider,
                   others: SceneOctree, params: SamplerParams = SamplerParams(),
                   rng: np.random.Generator | None = None, approach_hints: np.ndarray | None = None
@@ -256,21 +350,7 @@ def sample_grasps(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
     if M < 3:
         return GraspSet.empty(geo.id), stats
     n_pairs = int(np.ceil(params.n_candidates / params.n_approach))
-    # Seeds: several times the pairs wanted (many rays find no antipodal partner), in chunks to cap memory.
-    order = rng.permutation(M)
-    pairs_i, pairs_j, axes = [], [], []
-    chunk = max(32, min(3 * n_pairs, int(2e6 // max(M, 1))))
-    pos = 0
-    while pos < len(order) and sum(len(a) for a in pairs_i) < n_pairs and pos < 8 * n_pairs:
-        s = order[pos: pos + chunk]
-        pos += len(s)
-        j, y = _contact_pairs(P, N, s, params, max_cw)
-        ok = j >= 0
-        s = np.concatenate([s, s])
-        pairs_i.append(s[ok])
-        pairs_j.append(j[ok])
-        axes.append(y[ok])
-    stats["pairs_tried"] = int(pos)
+    pairs_i, pairs_j, axes, stats["pairs_tried"] = _seed_pairs(P, N, rng, params, max_cw, n_pairs)
     if not pairs_i or sum(len(a) for a in pairs_i) == 0:
         return GraspSet.empty(geo.id), stats
     pi = np.concatenate(pairs_i)[:n_pairs]
@@ -280,57 +360,9 @@ def sample_grasps(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
     C = 0.5 * (P[pi] + P[pj])  # (S, 3)
     R = _frames(Y, support.up, params.n_approach, rng, params.full_circle, approach_hints).reshape(-1, 3, 3)  # (S*K, 3, 3)
     C = np.repeat(C, params.n_approach, axis=0)
-    n = len(R)
-    stats["candidates"] = int(n)
-
-    # object points in each candidate's frame centred on the contact centre: (n, M, 3)
-    R32 = R.astype(np.float32)
-    L = np.matmul(P.astype(np.float32)[None], R32) - np.matmul(C.astype(np.float32)[:, None, :], R32)
-    fx, fz = gripper.finger_x, gripper.finger_z
-    flen = gripper.finger_length
-    in_x = (L[..., 0] >= fx[0]) & (L[..., 0] <= fx[1]) & (np.abs(L[..., 1]) <= gripper.max_width / 2)
-
-    chosen = np.full(n, -1)
-    T_best = np.zeros((n, 4, 4))
-    width = np.zeros(n)
-    cwidth = np.zeros(n)
-    depth = np.zeros(n)
-    region_any = np.zeros(n, dtype=bool)
-    for k, frac in enumerate(params.depths):
-        todo = chosen < 0
-        if not todo.any():
-            break
-        dlt = frac * flen
-        # closing region at this depth: z_g = z_local - dlt in [finger_z[0], finger_z[1]]
-        zl = L[todo, :, 2] - dlt
-        reg = in_x[todo] & (zl >= fz[0]) & (zl <= fz[1])
-        cnt = reg.sum(axis=1)
-        yl = L[todo, :, 1]
-        ymin = np.where(reg, yl, np.inf).min(axis=1)
-        ymax = np.where(reg, yl, -np.inf).max(axis=1)
-        cw = ymax - ymin
-        ok = (cnt >= params.min_points) & (cw >= params.min_width) & (cw <= max_cw)
-        idx = np.nonzero(todo)[0][ok]
-        region_any[idx] = True
-        if len(idx) == 0:
-            continue
-        shift = (0.5 * (ymin + ymax))[ok]
-        w = np.minimum(cw[ok] + 2 * params.clearance, gripper.max_width)
-        Rk = R[idx]
-        o = C[idx] + Rk[:, :, 1] * shift[:, None] + Rk[:, :, 2] * dlt
-        T = np.zeros((len(idx), 4, 4))
-        T[:, :3, :3], T[:, :3, 3], T[:, 3, 3] = Rk, o, 1.0
-        # the swept fingers and palm against the object's own points (a fine octree: at most its resolution
-        # of inflation, less than the least clearance) ...
-        free = ~collider.collides(own, T, w, swept=True)
-        # ... and against the rest of the scene (table, neighbours), with a margin
-        free[free] = ~collider.collides(others, T[free], w[free], swept=True, margin=params.scene_margin)
-        good = idx[free]
-        chosen[good] = k
-        T_best[good] = T[free]
-        width[good] = w[free]
-        cwidth[good] = cw[ok][free]
-        depth[good] = dlt
+    stats["candidates"] = int(len(R))
+    chosen, T_best, width, cwidth, depth, region_any = _push_in(P, R, C, gripper, collider, own, others, params,
+                                                                 max_cw)
     stats["closing_region_ok"] = int(region_any.sum())
     keep = np.nonzero(chosen >= 0)[0]
     stats["collision_free"] = int(len(keep))

@@ -168,18 +168,61 @@ def _box_corners(aabb: np.ndarray, T: np.ndarray) -> np.ndarray:
 _CACHE: dict[str, GripperModel] = {}
 
 
-def load_gripper(robot: str = "piper") -> GripperModel:
-    """The gripper of robot ``robot`` (a registry name or URDF path), from its URDF's collision geometry.
+@dataclass
+class _Hand:
+    """The robot model's parts that move the gripper: the tool frame, the hand joint, the finger joints."""
 
-    Raises ``ValueError`` when the model has no tool frame or no finger joints.
-    """
-    if robot in _CACHE:
-        return _CACHE[robot]
+    robot: str
+    model: object
+    data: object
+    geom: object
+    gdata: object
+    tcp_id: int
+    hand_joint: int
+    fingers: tuple[str, ...]
+    finger_jids: list[int]
+    finger_idx: list[int]
+    q_mid: np.ndarray
+    lo: np.ndarray  # (F,) finger joints' lower limits
+    hi: np.ndarray  # (F,) ... upper limits
+    by_name: dict  # geometry name -> geometry object
+
+    def placements(self, qf: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """(T_g_shape (4, 4) of every hand and finger shape by name, T_b_g (4, 4)) with the fingers at ``qf``."""
+        import pinocchio as pin
+
+        model, data = self.model, self.data
+        q = self.q_mid.copy()
+        for i, v in zip(self.finger_idx, qf):
+            q[i] = v
+        pin.forwardKinematics(model, data, q)
+        pin.updateFramePlacements(model, data)
+        pin.updateGeometryPlacements(model, data, self.geom, self.gdata, q)
+        T_b_g = np.asarray(data.oMf[self.tcp_id].homogeneous)
+        T_g_b = inv_T(T_b_g)
+        out = {}
+        for k, go in enumerate(self.geom.geometryObjects):
+            if go.parentJoint == self.hand_joint or go.parentJoint in self.finger_jids:
+                out[go.name] = T_g_b @ np.asarray(self.gdata.oMg[k].homogeneous)
+        return out, T_b_g
+
+    def inner_gap(self, P: dict[str, np.ndarray]) -> tuple[float, list[np.ndarray]]:
+        """(the gap between the fingers' inner faces along y, the fingers' box corners (8, 3) each) at placements P."""
+        neg, pos, corners = [], [], []
+        for n, T in P.items():
+            if self.by_name[n].parentJoint in self.finger_jids:
+                c = _box_corners(_local_aabb(self.by_name[n].geometry), T)
+                corners.append(c)
+                (pos if c[:, 1].mean() > 0 else neg).append(c)
+        if not neg or not pos:
+            raise ValueError(f"robot '{self.robot}': the fingers are not on both sides of the gripper frame's y = 0 plane")
+        return float(min(c[:, 1].min() for c in pos) - max(c[:, 1].max() for c in neg)), corners
+
+
+def _hand(robot: str, rm) -> _Hand:
+    """The gripper's joints and frames of the loaded robot model ``rm`` (raises ValueError when missing)."""
     import pinocchio as pin
 
-    from bimanual_app.robots import load_robot
-
-    rm = load_robot(robot)
     tcp = getattr(rm, "tcp_link", None)
     if not tcp:
         raise ValueError(f"robot '{robot}' has no gripper frame (tcp_link); grasps need one")
@@ -194,88 +237,87 @@ def load_gripper(robot: str = "piper") -> GripperModel:
     finger_jids = [model.getJointId(n) for n in fingers]
     if any(j >= model.njoints for j in finger_jids):
         raise ValueError(f"finger joints {fingers} not all in robot '{robot}'")
-
-    q_mid = pin.neutral(model)
     finger_idx = [model.joints[j].idx_q for j in finger_jids]
     lo = np.array([model.lowerPositionLimit[i] for i in finger_idx])
     hi = np.array([model.upperPositionLimit[i] for i in finger_idx])
+    return _Hand(robot, model, data, geom, gdata, tcp_id, hand_joint, fingers, finger_jids, finger_idx,
+                 pin.neutral(model), lo, hi, {go.name: go for go in geom.geometryObjects})
 
-    def placements(qf: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
-        q = q_mid.copy()
-        for i, v in zip(finger_idx, qf):
-            q[i] = v
-        pin.forwardKinematics(model, data, q)
-        pin.updateFramePlacements(model, data)
-        pin.updateGeometryPlacements(model, data, geom, gdata, q)
-        T_b_g = np.asarray(data.oMf[tcp_id].homogeneous)
-        T_g_b = inv_T(T_b_g)
-        out = {}
-        for k, go in enumerate(geom.geometryObjects):
-            if go.parentJoint == hand_joint or go.parentJoint in finger_jids:
-                out[go.name] = T_g_b @ np.asarray(gdata.oMg[k].homogeneous)
-        return out, T_b_g
 
-    # Which end of each finger joint's range is "closed": the one that brings its shapes nearest y = 0.
-    by_name = {go.name: go for go in geom.geometryObjects}
-    P_lo, _ = placements(lo)
-    P_hi, _ = placements(hi)
-    closed = np.empty(len(fingers))
-    for f, jid in enumerate(finger_jids):
-        names = [n for n, go in by_name.items() if go.parentJoint == jid and n in P_lo]
+def _closed_end(hand: _Hand) -> np.ndarray:
+    """(F,) which end of each finger joint's range is "closed": the one that brings its shapes nearest y = 0."""
+    P_lo, _ = hand.placements(hand.lo)
+    P_hi, _ = hand.placements(hand.hi)
+    closed = np.empty(len(hand.fingers))
+    for f, jid in enumerate(hand.finger_jids):
+        names = [n for n, go in hand.by_name.items() if go.parentJoint == jid and n in P_lo]
         if not names:
-            raise ValueError(f"finger joint {fingers[f]} of robot '{robot}' carries no collision geometry")
-        y_lo = min(np.abs(_box_corners(_local_aabb(by_name[n].geometry), P_lo[n])[:, 1]).min() for n in names)
-        y_hi = min(np.abs(_box_corners(_local_aabb(by_name[n].geometry), P_hi[n])[:, 1]).min() for n in names)
-        closed[f] = lo[f] if y_lo <= y_hi else hi[f]
-    opened = np.where(closed == lo, hi, lo)
-    P0, T_b_g0 = placements(closed)
-    P1, _ = placements(opened)
+            raise ValueError(f"finger joint {hand.fingers[f]} of robot '{hand.robot}' carries no collision geometry")
+        y_lo = min(np.abs(_box_corners(_local_aabb(hand.by_name[n].geometry), P_lo[n])[:, 1]).min() for n in names)
+        y_hi = min(np.abs(_box_corners(_local_aabb(hand.by_name[n].geometry), P_hi[n])[:, 1]).min() for n in names)
+        closed[f] = hand.lo[f] if y_lo <= y_hi else hand.hi[f]
+    return closed
 
-    def inner_gap(P: dict[str, np.ndarray]) -> tuple[float, list[np.ndarray]]:
-        neg, pos, corners = [], [], []
-        for n, T in P.items():
-            if by_name[n].parentJoint in finger_jids:
-                c = _box_corners(_local_aabb(by_name[n].geometry), T)
-                corners.append(c)
-                (pos if c[:, 1].mean() > 0 else neg).append(c)
-        if not neg or not pos:
-            raise ValueError(f"robot '{robot}': the fingers are not on both sides of the gripper frame's y = 0 plane")
-        return float(min(c[:, 1].min() for c in pos) - max(c[:, 1].max() for c in neg)), corners
 
-    gap0, corners0 = inner_gap(P0)
-    gap1, _ = inner_gap(P1)
-    stroke = gap1 - gap0
-    if stroke <= 1e-4:
-        raise ValueError(f"robot '{robot}': the finger joints do not open the gripper along its y axis")
-    # check linearity (prismatic fingers): half-open gives the mean gap
-    P_half, _ = placements((closed + opened) / 2)
-    if abs(inner_gap(P_half)[0] - (gap0 + gap1) / 2) > 1e-6:
-        raise ValueError(f"robot '{robot}': finger gap is not linear in the joint values (prismatic fingers expected)")
-
+def _shapes(hand: _Hand, P0: dict[str, np.ndarray], P1: dict[str, np.ndarray], gap0: float,
+            stroke: float) -> list[GripperShape]:
+    """The gripper's shapes, fingers moving linearly with the opening (placements closed P0 and open P1)."""
     shapes = []
     for n, T0 in P0.items():
-        go = by_name[n]
-        is_finger = go.parentJoint in finger_jids
+        go = hand.by_name[n]
+        is_finger = go.parentJoint in hand.finger_jids
         motion = (P1[n][:3, 3] - T0[:3, 3]) / stroke if is_finger else np.zeros(3)
         T_w0 = T0.copy()
         T_w0[:3, 3] -= gap0 * motion  # extrapolated to opening 0, so that T_g_s(w) = T_w0 + w * motion
-        shapes.append(GripperShape(n, model.frames[go.parentFrame].name, go.geometry, T_w0, motion, "finger" if is_finger else "palm", _local_aabb(go.geometry)))
+        shapes.append(GripperShape(n, hand.model.frames[go.parentFrame].name, go.geometry, T_w0, motion,
+                                   "finger" if is_finger else "palm", _local_aabb(go.geometry)))
+    return shapes
 
-    # pads: x and z ranges where both fingers are (intersection over the fingers' boxes)
-    x_lo = max(c[:, 0].min() for c in corners0)
-    x_hi = min(c[:, 0].max() for c in corners0)
-    z_lo = max(c[:, 2].min() for c in corners0)
-    z_hi = min(c[:, 2].max() for c in corners0)
-    # the palm's face: the highest z reached by any non-finger shape that lies within the closing region in x, y
+
+def _palm_z(shapes: list[GripperShape]) -> float:
+    """The palm's face: the highest z reached by any non-finger shape."""
     palm_z = -np.inf
     for s in shapes:
         if s.role == "palm":
             c = _box_corners(s.aabb_local, s.T_g_s0)
             palm_z = max(palm_z, float(c[:, 2].max()))
+    return palm_z
+
+
+def load_gripper(robot: str = "piper") -> GripperModel:
+    """The gripper of robot ``robot`` (a registry name or URDF path), from its URDF's collision geometry.
+
+    Raises ``ValueError`` when the model has no tool frame or no finger joints.
+    """
+    if robot in _CACHE:
+        return _CACHE[robot]
+    from bimanual_app.robots import load_robot
+
+    rm = load_robot(robot)
+    hand = _hand(robot, rm)
+    closed = _closed_end(hand)
+    opened = np.where(closed == hand.lo, hand.hi, hand.lo)
+    P0, T_b_g0 = hand.placements(closed)
+    P1, _ = hand.placements(opened)
+    gap0, corners0 = hand.inner_gap(P0)
+    gap1, _ = hand.inner_gap(P1)
+    stroke = gap1 - gap0
+    if stroke <= 1e-4:
+        raise ValueError(f"robot '{robot}': the finger joints do not open the gripper along its y axis")
+    # check linearity (prismatic fingers): half-open gives the mean gap
+    P_half, _ = hand.placements((closed + opened) / 2)
+    if abs(hand.inner_gap(P_half)[0] - (gap0 + gap1) / 2) > 1e-6:
+        raise ValueError(f"robot '{robot}': finger gap is not linear in the joint values (prismatic fingers expected)")
+    shapes = _shapes(hand, P0, P1, gap0, stroke)
+    # pads: x and z ranges where both fingers are (intersection over the fingers' boxes)
+    x_lo = max(c[:, 0].min() for c in corners0)
+    x_hi = min(c[:, 0].max() for c in corners0)
+    z_lo = max(c[:, 2].min() for c in corners0)
+    z_hi = min(c[:, 2].max() for c in corners0)
     T_e_g = np.asarray(getattr(rm, "T_e_g", None)) if getattr(rm, "T_e_g", None) is not None else None
     if T_e_g is None:
-        ee_id = model.getFrameId(rm.ee_link)
-        T_e_g = inv_T(np.asarray(data.oMf[ee_id].homogeneous)) @ T_b_g0
+        ee_id = hand.model.getFrameId(rm.ee_link)
+        T_e_g = inv_T(np.asarray(hand.data.oMf[ee_id].homogeneous)) @ T_b_g0
     gm = GripperModel(
         robot=rm.name,
         shapes=tuple(shapes),
@@ -283,9 +325,9 @@ def load_gripper(robot: str = "piper") -> GripperModel:
         max_width=float(gap1),
         finger_x=np.array([x_lo, x_hi]),
         finger_z=np.array([z_lo, z_hi]),
-        palm_z=float(palm_z),
+        palm_z=float(_palm_z(shapes)),
         T_e_g=np.asarray(T_e_g, dtype=np.float64),
-        finger_joints=fingers,
+        finger_joints=hand.fingers,
         finger_gain=tuple(float(v) for v in (opened - closed) / stroke),
         finger_closed=tuple(float(v) for v in closed),
     )

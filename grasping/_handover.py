@@ -375,24 +375,27 @@ def plan_handovers(geo: ObjectGeometry, support: Support, giver: ArmGrasps, free
     return found, stats
 
 
-def _search(geo, support, giver, free, arms, collider, check, params, clear, obstacles_b1, object_points_b1, stats):
-    """Every feasible hand-over, cheapest predicted first (see the module docstring); counts into ``stats``."""
+def _scene_clearance(geo: ObjectGeometry, support: Support, sec: Arm, params: HandoverParams, obstacles_b1,
+                     object_points_b1) -> tuple[PointClearance | None, np.ndarray | None]:
+    """(the scene's clearance index over the transfer region, the object's points (<= ~300, 3) it is checked
+    with), or (None, None) without obstacles."""
+    if obstacles_b1 is None or not len(obstacles_b1):
+        return None, None
+    pts = geo.points if object_points_b1 is None else np.asarray(object_points_b1, dtype=np.float64).reshape(-1, 3)
+    obj_pts = pts[:: max(1, len(pts) // 300)]
+    # every transfer pose puts the object's centre on one of the targets: its points stay within its radius
+    targets, _ = _transfer_targets(geo, support, sec.T_b1_b, params)
+    radius = float(np.linalg.norm(obj_pts - geo.centre, axis=1).max()) if len(obj_pts) else 0.0
+    return PointClearance(obstacles_b1, params.object_clearance,
+                          (targets.min(axis=0) - radius, targets.max(axis=0) + radius)), obj_pts
+
+
+def _ranked_transfers(geo, support, giver, free, arms, collider, params, clear, scene_clear, obj_pts,
+                      stats) -> list[tuple]:
+    """(giver, move) candidates ranked by predicted cost (the giver's prior + the best clear receiver's):
+    ``(cost, order of preference, giver index, move (4, 4), clear receivers)``, cheaper first."""
     prim, sec = arms["primary"], arms["secondary"]
-    with_pre = getattr(sec.reach, "with_pregrasp", None)
-    sec_reach = with_pre(params.receiver_pregrasp) if with_pre is not None else sec.reach
-    T_b2_b1 = inv_T(sec.T_b1_b)
-    T_b_b1 = inv_T(prim.T_b1_b)
-    scene_clear = None
-    if obstacles_b1 is not None and len(obstacles_b1):
-        pts = geo.points if object_points_b1 is None else np.asarray(object_points_b1, dtype=np.float64).reshape(-1, 3)
-        obj_pts = pts[:: max(1, len(pts) // 300)]
-        # every transfer pose puts the object's centre on one of the targets: its points stay within its radius
-        targets, _ = _transfer_targets(geo, support, sec.T_b1_b, params)
-        radius = float(np.linalg.norm(obj_pts - geo.centre, axis=1).max()) if len(obj_pts) else 0.0
-        scene_clear = PointClearance(obstacles_b1, params.object_clearance,
-                                     (targets.min(axis=0) - radius, targets.max(axis=0) + radius))
-    # (giver, move) candidates with their predicted cost: the giver's prior + the best clear receiver's
-    cands = []  # (cost, order of preference, giver index, move, clear receivers)
+    cands = []
     n_pref = 0
     for gi in range(min(params.givers, len(giver))):
         G = giver.grasps.T_b1_g[gi]
@@ -420,10 +423,71 @@ def _search(geo, support, giver, free, arms, collider, check, params, clear, obs
                 cands.append((float(pg[m] + best[j]), n_pref + int(m), gi, moves[m], clear_g))
         n_pref += len(moves)
     cands.sort(key=lambda c: (round(c[0] / 0.02), c[1]))  # cheaper first; ties: order of preference
+    return cands
+
+
+def _receiver_order(sec: Arm, Rt: np.ndarray, free: GraspSet, clear: np.ndarray,
+                    params: HandoverParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(the clear receivers to check, as indices into ``clear``; catch probability and margin of every clear
+    receiver): those the secondary is likely to reach, best score first within tiers of its prior and, within
+    a tier, the more likely to catch the object despite the calibration error first."""
+    tiers = np.digitize(_prior(sec, Rt), (0.05, 0.08, 0.12))
+    margin = 0.5 * (free.width[clear] - free.contact_width[clear])
+    catch = catch_probability(margin, _transfer_sigma(params, sec.T_b1_b, Rt[:, :3, 3]))
+    order = np.concatenate([(lambda i: i[np.argsort(-np.round(catch[i], 1), kind="stable")])(np.nonzero(tiers == t)[0])
+                            for t in range(3)])[: params.receivers_checked]
+    return order, catch, margin
+
+
+def _first_receiver(geo, giver, free, sec, sec_reach, T_b2_b1, collider, check, params, gi, move, Gt, rg, clear,
+                    stats) -> Handover | None:
+    """The hand-over with the first clear receiver that the secondary reaches (and ``check`` passes) for the
+    giver grasp ``gi`` moved by ``move`` to ``Gt`` (reached as ``rg``), or None."""
+    w_closed = float(giver.grasps.contact_width[gi])
+    Rt = move @ free.T_b1_g[clear]
+    order, catch, margin = _receiver_order(sec, Rt, free, clear, params)
+    stats["receiver_candidates"] += len(order)
+    if not len(order):
+        return None
+    ks = clear[order]
+    rr = sec_reach(T_b2_b1 @ Rt[order], free.width[ks])
+    for n, k in enumerate(ks):
+        if not rr.ok[n]:
+            continue
+        stats["receiver_reached"] += 1
+        R_k = Rt[order[n]]
+        R_used = R_k if not rr.flipped[n] else rotate_about_approach(R_k)
+        if check is not None:
+            ok2, _ = check(rg.q[0], w_closed, rr.q[n], float(free.width[k]))
+            if not ok2:
+                continue
+        gap = grippers_distance(collider, Gt, w_closed, R_used, float(free.contact_width[k]))
+        receiver = {"T_b1_g": R_used, "width": float(free.width[k]), "contact_width": float(free.contact_width[k]),
+                    "depth": float(free.depth[k]), "score": float(free.score[k]),
+                    "terms": {t: float(v[k]) for t, v in free.terms.items()},
+                    "q": rr.q[n], "q_pre": rr.q_pre[n], "index": int(k)}
+        c = float(catch[order[n]])
+        hold = float(giver_hold_probability(giver.grasps.depth[gi], params))
+        score = 0.5 * (float(giver.grasps.score[gi]) + float(free.score[k])) * c * hold
+        return Handover(move, move[:3, :3] @ geo.centre + move[:3, 3], gi, Gt, rg.q[0], w_closed, receiver,
+                        gap, score, dict(stats), c, float(margin[order[n]]),
+                        float(_transfer_sigma(params, sec.T_b1_b, R_used[:3, 3])[0]), giver,
+                        float(release_width(giver.grasps.width[gi], w_closed, params)))
+    return None  # one receiver per (giver, transfer pose): the next alternative is another pose
+
+
+def _search(geo, support, giver, free, arms, collider, check, params, clear, obstacles_b1, object_points_b1, stats):
+    """Every feasible hand-over, cheapest predicted first (see the module docstring); counts into ``stats``."""
+    prim, sec = arms["primary"], arms["secondary"]
+    with_pre = getattr(sec.reach, "with_pregrasp", None)
+    sec_reach = with_pre(params.receiver_pregrasp) if with_pre is not None else sec.reach
+    T_b2_b1 = inv_T(sec.T_b1_b)
+    T_b_b1 = inv_T(prim.T_b1_b)
+    scene_clear, obj_pts = _scene_clearance(geo, support, sec, params, obstacles_b1, object_points_b1)
+    cands = _ranked_transfers(geo, support, giver, free, arms, collider, params, clear, scene_clear, obj_pts, stats)
     for _, _, gi, T_move, clear in cands[: params.max_transfer_checks]:
         stats["transfer_poses"] += 1
         G = giver.grasps.T_b1_g[gi]
-        w_closed = float(giver.grasps.contact_width[gi])
         Gt = T_move @ G
         rg = prim.reach((T_b_b1 @ Gt)[None], np.array([giver.grasps.width[gi]]))
         if not rg.ok[0]:
@@ -436,39 +500,7 @@ def _search(geo, support, giver, free, arms, collider, check, params, clear, obs
             if scene_clear is not None and not _clear_of_scene(scene_clear, move, obj_pts):
                 stats["object_in_scene"] += 1  # turned with the giver's wrist, the object meets the scene
                 continue
-        Rt = move @ free.T_b1_g[clear]
-        # the clear receivers the secondary is likely to reach, best score first within tiers of its prior
-        # and, within a tier, the more likely to catch the object despite the calibration error first
-        tiers = np.digitize(_prior(sec, Rt), (0.05, 0.08, 0.12))
-        margin = 0.5 * (free.width[clear] - free.contact_width[clear])
-        catch = catch_probability(margin, _transfer_sigma(params, sec.T_b1_b, Rt[:, :3, 3]))
-        order = np.concatenate([(lambda i: i[np.argsort(-np.round(catch[i], 1), kind="stable")])(np.nonzero(tiers == t)[0])
-                                for t in range(3)])[: params.receivers_checked]
-        stats["receiver_candidates"] += len(order)
-        if not len(order):
-            continue
-        ks = clear[order]
-        rr = sec_reach(T_b2_b1 @ Rt[order], free.width[ks])
-        for n, k in enumerate(ks):
-            if not rr.ok[n]:
-                continue
-            stats["receiver_reached"] += 1
-            R_k = Rt[order[n]]
-            R_used = R_k if not rr.flipped[n] else rotate_about_approach(R_k)
-            if check is not None:
-                ok2, _ = check(rg.q[0], w_closed, rr.q[n], float(free.width[k]))
-                if not ok2:
-                    continue
-            gap = grippers_distance(collider, Gt, w_closed, R_used, float(free.contact_width[k]))
-            receiver = {"T_b1_g": R_used, "width": float(free.width[k]), "contact_width": float(free.contact_width[k]),
-                        "depth": float(free.depth[k]), "score": float(free.score[k]),
-                        "terms": {t: float(v[k]) for t, v in free.terms.items()},
-                        "q": rr.q[n], "q_pre": rr.q_pre[n], "index": int(k)}
-            c = float(catch[order[n]])
-            hold = float(giver_hold_probability(giver.grasps.depth[gi], params))
-            score = 0.5 * (float(giver.grasps.score[gi]) + float(free.score[k])) * c * hold
-            yield Handover(move, move[:3, :3] @ geo.centre + move[:3, 3], gi, Gt, rg.q[0], w_closed, receiver,
-                           gap, score, dict(stats), c, float(margin[order[n]]),
-                           float(_transfer_sigma(params, sec.T_b1_b, R_used[:3, 3])[0]), giver,
-                           float(release_width(giver.grasps.width[gi], w_closed, params)))
-            break  # one receiver per (giver, transfer pose): the next alternative is another pose
+        found = _first_receiver(geo, giver, free, sec, sec_reach, T_b2_b1, collider, check, params, gi, move, Gt, rg,
+                                clear, stats)
+        if found is not None:
+            yield found

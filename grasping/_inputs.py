@@ -90,19 +90,11 @@ def scene_cloud(points: np.ndarray, labels: np.ndarray, colors: np.ndarray | Non
 
 
 def load_cloud(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
-    """(points (N, 3) float64, colors (N, 3) uint8 or None) of a PLY (or any Open3D-readable) cloud."""
-    import open3d as o3d
+    """(points (N, 3) float64, colors (N, 3) uint8 or None) of a cloud file, read by the project's one cloud
+    reader (:func:`segmentation.read_cloud`: PLY / PCD / XYZ / NPZ; raises InputError naming the file)."""
+    from segmentation import read_cloud
 
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(Problem(str(path), "", "point cloud file not found",
-                                 "give scene_b1.ply from `bijcr calibrate SCENE --out DIR` (or that DIR)"))
-    pc = o3d.io.read_point_cloud(str(path))
-    P = np.asarray(pc.points, dtype=np.float64)
-    if len(P) == 0:
-        raise InputError(Problem(str(path), "", "the point cloud is empty or not a point cloud file",
-                                 "give the metric scene cloud scene_b1.ply (x y z, colours optional)"))
-    C = (np.clip(np.asarray(pc.colors) * 255.0, 0, 255).astype(np.uint8) if pc.has_colors() else None)
+    P, C, _ = read_cloud(path)
     return P, C
 
 

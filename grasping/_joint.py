@@ -65,6 +65,74 @@ def spread_order(points: np.ndarray, groups: np.ndarray, min_dist: float) -> np.
     return np.array(first + rest, dtype=int)
 
 
+def _horiz(v: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """``v`` (3,) or (n, 3) without its component along ``up``."""
+    return v - np.outer(v @ up, up) if v.ndim == 2 else v - (v @ up) * up
+
+
+def _push_terms(primary: ArmGrasps, secondary: ArmGrasps, i: int, j: int, c1: np.ndarray, c2: np.ndarray,
+                up: np.ndarray, d: np.ndarray, sep: float, mid: np.ndarray,
+                max_height_gap: float) -> tuple[float, float] | None:
+    """(imbalance, score adjustment) of two push contacts, or None when they do not make a squeeze: opposite
+    faces, at one height (else the squeeze twists the object), approaches opposed."""
+    f1, f2 = primary.grasps.extra["face"][i], secondary.grasps.extra["face"][j]
+    if f1[0] != f2[0] or f1[1] != -f2[1]:
+        return None  # not opposite faces
+    dh = abs(float((c1[i] - c2[j]) @ up))
+    if dh > max_height_gap:
+        return None  # not at one height: the squeeze would twist the object
+    zh1, zh2 = _horiz(primary.grasps.T_b1_g[i, :3, 2], up), _horiz(secondary.grasps.T_b1_g[j, :3, 2], up)
+    if zh1 @ zh2 > -0.9 * np.linalg.norm(zh1) * np.linalg.norm(zh2):
+        return None  # approaches not opposed
+    # for a squeeze the lateral offset of the line from the centre matters, not where along it
+    dn = d / sep
+    imb = float(np.linalg.norm(mid - (mid @ dn) * dn)) / (0.5 * sep)
+    return imb, -(0.5 * dh / max_height_gap * 0.2)  # a squeeze line off the horizontal twists a little
+
+
+def _lift_terms(geo: ObjectGeometry, c1: np.ndarray, c2: np.ndarray, sep: float, imb: float,
+                min_spread: float) -> tuple[float, float] | None:
+    """(imbalance, score adjustment) of two grasps of a long object (contacts ``c1``, ``c2`` (3,)), or None
+    when they are on one side of its centre or too close together to keep it level."""
+    axis = geo.T_b1_box[:3, 0]
+    s1, s2 = (c1 - geo.centre) @ axis, (c2 - geo.centre) @ axis
+    if s1 * s2 >= 0:
+        return None  # same side of the centre
+    if abs(s1 - s2) < min_spread * geo.extent[0]:
+        return None  # too close together to keep a long object level
+    return imb, 0.2 * min(1.0, sep / (0.8 * geo.extent[0]))  # far apart: steadier
+
+
+def _ranked_pairs(geo: ObjectGeometry, up: np.ndarray, primary: ArmGrasps, secondary: ArmGrasps, c1: np.ndarray,
+                  c2: np.ndarray, max_imbalance: float, max_height_gap: float, min_spread: float,
+                  stats: dict) -> list[tuple]:
+    """Every balanced pair as ``(score, i, j, imbalance, separation)``, best first."""
+    kind = primary.grasps.kind
+    cand = []
+    for i in range(len(primary)):
+        for j in range(len(secondary)):
+            d = _horiz(c2[j] - c1[i], up)
+            sep = float(np.linalg.norm(d))
+            if sep < 1e-6:
+                continue
+            mid = _horiz(0.5 * (c1[i] + c2[j]) - geo.centre, up)
+            imb = float(np.linalg.norm(mid)) / (0.5 * sep)
+            terms = (_push_terms(primary, secondary, i, j, c1, c2, up, d, sep, mid, max_height_gap) if kind == "push"
+                     else _lift_terms(geo, c1[i], c2[j], sep, imb, min_spread))
+            if terms is None:
+                continue
+            imb, adjust = terms
+            stats["candidates"] += 1
+            if imb > max_imbalance:
+                continue
+            stats["balanced"] += 1
+            score = 0.5 * (primary.grasps.score[i] + secondary.grasps.score[j]) - 0.5 * imb
+            score += adjust
+            cand.append((score, i, j, imb, sep))
+    cand.sort(key=lambda c: -c[0])
+    return cand
+
+
 def joint_pairs(geo: ObjectGeometry, support: Support, primary: ArmGrasps, secondary: ArmGrasps,
                 collider: GripperCollider, check: TwoArmCheck | None, max_pairs: int = 5, gap: float = 0.02,
                 max_imbalance: float = 0.25, max_checks: int = 60, max_height_gap: float = 0.015,
@@ -77,53 +145,9 @@ def joint_pairs(geo: ObjectGeometry, support: Support, primary: ArmGrasps, secon
     if len(primary) == 0 or len(secondary) == 0:
         return [], stats
     kind = primary.grasps.kind
-    up = support.up
     c1, c2 = _contact_centres(primary), _contact_centres(secondary)
-    z1, z2 = primary.grasps.T_b1_g[:, :3, 2], secondary.grasps.T_b1_g[:, :3, 2]
-
-    def horiz(v):
-        return v - np.outer(v @ up, up) if v.ndim == 2 else v - (v @ up) * up
-
-    cand = []
-    for i in range(len(primary)):
-        for j in range(len(secondary)):
-            d = horiz(c2[j] - c1[i])
-            sep = float(np.linalg.norm(d))
-            if sep < 1e-6:
-                continue
-            mid = horiz(0.5 * (c1[i] + c2[j]) - geo.centre)
-            imb = float(np.linalg.norm(mid)) / (0.5 * sep)
-            if kind == "push":
-                f1, f2 = primary.grasps.extra["face"][i], secondary.grasps.extra["face"][j]
-                if f1[0] != f2[0] or f1[1] != -f2[1]:
-                    continue  # not opposite faces
-                dh = abs(float((c1[i] - c2[j]) @ up))
-                if dh > max_height_gap:
-                    continue  # not at one height: the squeeze would twist the object
-                zh1, zh2 = horiz(z1[i]), horiz(z2[j])
-                if zh1 @ zh2 > -0.9 * np.linalg.norm(zh1) * np.linalg.norm(zh2):
-                    continue  # approaches not opposed
-                # for a squeeze the lateral offset of the line from the centre matters, not where along it
-                dn = d / sep
-                imb = float(np.linalg.norm(mid - (mid @ dn) * dn)) / (0.5 * sep)
-            else:
-                axis = geo.T_b1_box[:3, 0]
-                s1, s2 = (c1[i] - geo.centre) @ axis, (c2[j] - geo.centre) @ axis
-                if s1 * s2 >= 0:
-                    continue  # same side of the centre
-                if abs(s1 - s2) < min_spread * geo.extent[0]:
-                    continue  # too close together to keep a long object level
-            stats["candidates"] += 1
-            if imb > max_imbalance:
-                continue
-            stats["balanced"] += 1
-            score = 0.5 * (primary.grasps.score[i] + secondary.grasps.score[j]) - 0.5 * imb
-            if kind == "push":
-                score -= 0.5 * dh / max_height_gap * 0.2  # a squeeze line off the horizontal twists a little
-            else:
-                score += 0.2 * min(1.0, sep / (0.8 * geo.extent[0]))  # far apart: steadier
-            cand.append((score, i, j, imb, sep))
-    cand.sort(key=lambda c: -c[0])
+    cand = _ranked_pairs(geo, support.up, primary, secondary, c1, c2, max_imbalance, max_height_gap, min_spread,
+                         stats)
     out: list[JointPair] = []
     similar: list[JointPair] = []
     for score, i, j, imb, sep in cand[:max_checks]:

@@ -379,6 +379,105 @@ def primitive_fit(geo: ObjectGeometry, support: Support, tol: float = PRIMITIVE_
     return "free-form", max(box, cyl)
 
 
+@dataclass
+class _SideArc:
+    """The seen side of an upright object as an arc of a circle in the table plane (see :func:`complete_cylinder`)."""
+
+    e1: np.ndarray  # (3,) table-plane basis
+    e2: np.ndarray  # (3,)
+    side: np.ndarray  # (M,) bool: the seen side points of the object
+    S: np.ndarray  # (K, 3) those points
+    strict: bool  # the algebraic circle fits them within CYL_MAX_RMS of its radius
+    c: np.ndarray  # (2,) the refined circle's centre in (e1, e2)
+    r: float  # ... and radius
+    rel: np.ndarray  # (K, 2) the points from the centre
+    dist: np.ndarray  # (K,) ... their distances
+
+
+def _side_arc(geo: ObjectGeometry, support: Support) -> _SideArc | None:
+    """The circle through the object's seen side points, or None (too few, no circle, not a can's radius)."""
+    up = support.up
+    side = geo.observed & (np.abs(geo.normals @ up) < 0.3)
+    if side.sum() < 30:
+        return None
+    e1, e2 = _perp_basis(up)
+    S = geo.points[side]
+    xy = np.stack([S @ e1, S @ e2], axis=1)
+    fit = fit_circle(xy)
+    if fit is None:
+        return None
+    rms_algebraic = float(np.sqrt(np.mean((np.linalg.norm(xy - fit[0], axis=1) - fit[1]) ** 2)))
+    strict = rms_algebraic <= CYL_MAX_RMS * fit[1]
+    c, r = refine_circle(xy, *fit)
+    rel = xy - c
+    dist = np.linalg.norm(rel, axis=1)
+    if not (CYL_RADIUS[0] <= r <= CYL_RADIUS[1]):
+        return None
+    return _SideArc(e1, e2, side, S, strict, c, r, rel, dist)
+
+
+def _keeps_to_circle(arc: _SideArc, support: Support, top: float) -> bool:
+    """Its side keeps to the circle from the table to the top (in thirds of its height): a duck's head does not."""
+    elev_side = support.elevation(arc.S)
+    edges = np.linspace(0.0, top, 4)
+    bands = [arc.dist[(elev_side >= lo) & (elev_side < hi)] - arc.r for lo, hi in zip(edges[:-1], edges[1:])]
+    return max((abs(float(np.median(b))) for b in bands if len(b) >= 10), default=np.inf) <= CYL_BAND_OFF
+
+
+def _noisy_cylinder(geo: ObjectGeometry, arc: _SideArc, P_obs: np.ndarray, elev_obs: np.ndarray, top: float) -> bool:
+    """A noisier arc (1-3 mm clouds) is still a cylinder's when it is not a box's (its side points nearer the
+    circle than the box's sides) and its top is a closed disc (not a toy's back)."""
+    T, h = geo.T_b1_box, 0.5 * geo.extent[:2]
+    q = np.abs((arc.S - T[:3, 3]) @ T[:3, :2])
+    on_box = float(np.mean(np.min(np.abs(h - q), axis=1) < PRIMITIVE_TOL))
+    on_circle = float(np.mean(np.abs(arc.dist - arc.r) < PRIMITIVE_TOL))
+    rms = float(np.sqrt(np.mean((arc.dist - arc.r) ** 2)))
+    cover = _top_cover(np.stack([P_obs @ arc.e1, P_obs @ arc.e2], axis=1), elev_obs, arc.c, arc.r, top)
+    return not (rms > CYL_NOISY_RMS or on_circle <= on_box or cover < CYL_MIN_TOP)
+
+
+def _radial_normals(geo: ObjectGeometry, arc: _SideArc) -> bool:
+    """The side points' normals point along the radius (CYL_MIN_RADIAL)."""
+    radial = arc.rel / np.maximum(arc.dist[:, None], 1e-9)
+    n2 = np.stack([geo.normals[arc.side] @ arc.e1, geo.normals[arc.side] @ arc.e2], axis=1)
+    n2 /= np.maximum(np.linalg.norm(n2, axis=1, keepdims=True), 1e-9)
+    return np.mean(np.abs(np.einsum("ij,ij->i", n2, radial))) >= CYL_MIN_RADIAL
+
+
+def _unseen_arc(arc: _SideArc) -> tuple[float, float] | None:
+    """(start angle, span) of the unseen arc: the largest gap between the points' angles; None when the
+    points do not cover an arc of CYL_ARC."""
+    ang = np.sort(np.arctan2(arc.rel[:, 1], arc.rel[:, 0]))
+    gaps = np.diff(np.r_[ang, ang[0] + 2 * np.pi])
+    k = int(np.argmax(gaps))
+    covered = 2 * np.pi - float(gaps[k])
+    if not (CYL_ARC[0] <= covered <= CYL_ARC[1]):
+        return None
+    return ang[k], gaps[k]
+
+
+def _cylinder_box(geo: ObjectGeometry, out: ObjectGeometry, arc: _SideArc, up: np.ndarray) -> ObjectGeometry:
+    """``out`` with the box grown to hold the whole cylinder (its axes stay).
+
+    The fitted circle's square, not the points' extremes, whose noise and the depth blur of the fused views
+    widen it by millimetres (and millimetres decide whether a can fits the stroke).
+    """
+    c, r = arc.c, arc.r
+    u, v = geo.T_b1_box[:3, 0], geo.T_b1_box[:3, 1]
+    c3 = c[0] * arc.e1 + c[1] * arc.e2
+    lo_u, hi_u = c3 @ u - r, c3 @ u + r
+    lo_v, hi_v = c3 @ v - r, c3 @ v + r
+    zc = geo.centre @ up
+    centre = 0.5 * (lo_u + hi_u) * u + 0.5 * (lo_v + hi_v) * v + zc * up
+    T = geo.T_b1_box.copy()
+    T[:3, 3] = centre
+    extent = np.array([hi_u - lo_u, hi_v - lo_v, geo.extent[2]])
+    if extent[1] > extent[0]:  # x stays along the longer side
+        T[:3, 0], T[:3, 1] = v, -u
+        extent[:2] = extent[1::-1]
+    return ObjectGeometry(out.id, out.n_points, out.points, out.normals, T, extent, centre, out.voxel, out.observed)
+
+
 def complete_cylinder(geo: ObjectGeometry, support: Support, bottom: float = 0.0) -> ObjectGeometry:
     """Complete an upright cylinder seen from one side (a can, a bottle, a mug's body) with its unseen arc.
 
@@ -398,85 +497,35 @@ def complete_cylinder(geo: ObjectGeometry, support: Support, bottom: float = 0.0
     a box's corner or an irregular toy fits none of these. Returns ``geo`` unchanged otherwise.
     """
     up = support.up
-    obs = geo.observed
-    side = obs & (np.abs(geo.normals @ up) < 0.3)
-    if side.sum() < 30:
+    arc = _side_arc(geo, support)
+    if arc is None:
         return geo
-    e1, e2 = _perp_basis(up)
-    S = geo.points[side]
-    xy = np.stack([S @ e1, S @ e2], axis=1)
-    fit = fit_circle(xy)
-    if fit is None:
-        return geo
-    rms_algebraic = float(np.sqrt(np.mean((np.linalg.norm(xy - fit[0], axis=1) - fit[1]) ** 2)))
-    strict = rms_algebraic <= CYL_MAX_RMS * fit[1]
-    c, r = refine_circle(xy, *fit)
-    rel = xy - c
-    dist = np.linalg.norm(rel, axis=1)
-    if not (CYL_RADIUS[0] <= r <= CYL_RADIUS[1]):
-        return geo
-    P_obs = geo.points[obs]
+    P_obs = geo.points[geo.observed]
     elev_obs = support.elevation(P_obs)
     top = float(np.percentile(elev_obs, 99.5))
-    # its side keeps to the circle from the table to the top (in thirds of its height): a duck's head
-    # does not
-    elev_side = support.elevation(S)
-    edges = np.linspace(0.0, top, 4)
-    bands = [dist[(elev_side >= lo) & (elev_side < hi)] - r for lo, hi in zip(edges[:-1], edges[1:])]
-    if max((abs(float(np.median(b))) for b in bands if len(b) >= 10), default=np.inf) > CYL_BAND_OFF:
+    if not _keeps_to_circle(arc, support, top):
         return geo
-    if not strict:
-        # a noisier arc (the bench's clouds: 1-3 mm) is still a cylinder's when it is not a box's (its side
-        # points nearer the circle than the box's sides) and its top is a closed disc (not a toy's back)
-        T, h = geo.T_b1_box, 0.5 * geo.extent[:2]
-        q = np.abs((S - T[:3, 3]) @ T[:3, :2])
-        on_box = float(np.mean(np.min(np.abs(h - q), axis=1) < PRIMITIVE_TOL))
-        on_circle = float(np.mean(np.abs(dist - r) < PRIMITIVE_TOL))
-        rms = float(np.sqrt(np.mean((dist - r) ** 2)))
-        cover = _top_cover(np.stack([P_obs @ e1, P_obs @ e2], axis=1), elev_obs, c, r, top)
-        if rms > CYL_NOISY_RMS or on_circle <= on_box or cover < CYL_MIN_TOP:
-            return geo
-    radial = rel / np.maximum(dist[:, None], 1e-9)
-    n2 = np.stack([geo.normals[side] @ e1, geo.normals[side] @ e2], axis=1)
-    n2 /= np.maximum(np.linalg.norm(n2, axis=1, keepdims=True), 1e-9)
-    if np.mean(np.abs(np.einsum("ij,ij->i", n2, radial))) < CYL_MIN_RADIAL:
+    if not arc.strict and not _noisy_cylinder(geo, arc, P_obs, elev_obs, top):
         return geo
-    # the arc the points cover: the largest gap between their angles is the unseen part
-    ang = np.sort(np.arctan2(rel[:, 1], rel[:, 0]))
-    gaps = np.diff(np.r_[ang, ang[0] + 2 * np.pi])
-    k = int(np.argmax(gaps))
-    covered = 2 * np.pi - float(gaps[k])
-    if not (CYL_ARC[0] <= covered <= CYL_ARC[1]):
+    if not _radial_normals(geo, arc):
         return geo
-    step = geo.voxel / r
-    a_new = ang[k] + np.arange(step, gaps[k] - 0.5 * step, step)
+    gap = _unseen_arc(arc)
+    if gap is None:
+        return geo
+    step = geo.voxel / arc.r
+    a_new = gap[0] + np.arange(step, gap[1] - 0.5 * step, step)
     zs = np.arange(bottom + 0.5 * geo.voxel, top, geo.voxel)
     if not len(a_new) or not len(zs):
         return geo
     ring = np.stack([np.cos(a_new), np.sin(a_new)], axis=1)
-    base = (c[0] + r * ring[:, :1]) * e1 + (c[1] + r * ring[:, 1:]) * e2  # (A, 3) in the plane through 0
-    h0 = support.height
-    Q = (base[:, None, :] + (h0 + zs)[None, :, None] * up).reshape(-1, 3)
+    e1, e2 = arc.e1, arc.e2
+    base = (arc.c[0] + arc.r * ring[:, :1]) * e1 + (arc.c[1] + arc.r * ring[:, 1:]) * e2  # (A, 3) in the plane through 0
+    Q = (base[:, None, :] + (support.height + zs)[None, :, None] * up).reshape(-1, 3)
     Nq = np.repeat(ring[:, :1] * e1 + ring[:, 1:] * e2, len(zs), axis=0)
     out = _add_unseen(geo, Q, Nq, 1.5 * geo.voxel)
     if out is geo:
         return geo
-    # the box grows to hold the whole cylinder (its axes stay)
-    # (the fitted circle's square: not the points' extremes, whose noise and the depth blur of the fused
-    # views widen it by millimetres, and millimetres decide whether a 6.5 cm can fits the stroke)
-    u, v = geo.T_b1_box[:3, 0], geo.T_b1_box[:3, 1]
-    c3 = c[0] * e1 + c[1] * e2
-    lo_u, hi_u = c3 @ u - r, c3 @ u + r
-    lo_v, hi_v = c3 @ v - r, c3 @ v + r
-    zc = geo.centre @ up
-    centre = 0.5 * (lo_u + hi_u) * u + 0.5 * (lo_v + hi_v) * v + zc * up
-    T = geo.T_b1_box.copy()
-    T[:3, 3] = centre
-    extent = np.array([hi_u - lo_u, hi_v - lo_v, geo.extent[2]])
-    if extent[1] > extent[0]:  # x stays along the longer side
-        T[:3, 0], T[:3, 1] = v, -u
-        extent[:2] = extent[1::-1]
-    return ObjectGeometry(out.id, out.n_points, out.points, out.normals, T, extent, centre, out.voxel, out.observed)
+    return _cylinder_box(geo, out, arc, up)
 
 
 def complete_by_symmetry(geo: ObjectGeometry, support: Support, gap: float | None = None) -> ObjectGeometry:

@@ -166,22 +166,10 @@ def _gripper_segments(gripper, T_b1_g: np.ndarray, width: float) -> np.ndarray:
     return np.array(segs)
 
 
-def draw_plan(path: str | Path, plan: GraspPlan, points: np.ndarray, labels: np.ndarray, max_points: int = 30000) -> None:
-    """grasps.png: top and side views of the cloud with each object's best grasp, joint pair and hand-over."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.collections import LineCollection
-
-    rng = np.random.default_rng(0)
-    sel = rng.choice(len(points), size=min(max_points, len(points)), replace=False)
-    P, L = points[sel], labels[sel]
-    cmap = plt.get_cmap("tab10")
-    colors = np.where(L[:, None] < 0, np.array([[0.75, 0.75, 0.75, 1.0]]), cmap(np.maximum(L, 0) % 10))
-    fig, axes = plt.subplots(1, 2, figsize=(14, 6.5))
-    views = [("top view (x-y in b1)", 0, 1), ("side view (x-z in b1)", 0, 2)]
-    drawn = []  # (segments (E,2,3), colour, label)
+def _drawn_grippers(plan: GraspPlan) -> list[tuple[np.ndarray, str, str]]:
+    """The grippers drawn: each object's best grasp per arm, joint pair and hand-over, as
+    ``(segments (E, 2, 3), colour, label)``."""
+    drawn = []
     for op in plan.objects:
         if op.grasps is not None:
             for arm, ag in op.reach.items():
@@ -204,44 +192,73 @@ def draw_plan(path: str | Path, plan: GraspPlan, points: np.ndarray, labels: np.
                           f"obj {op.id} hand-over giver"))
             drawn.append((_gripper_segments(plan.gripper, h.receiver["T_b1_g"], h.receiver["width"]), "purple",
                           f"obj {op.id} hand-over receiver"))
+    return drawn
+
+
+def _draw_objects(ax, plan: GraspPlan, a: int, b: int) -> None:
+    """The unseen space, each object moved to its hand-over's transfer pose, and each object's id and mode."""
+    unseen = [op.unseen for op in plan.objects if op.unseen is not None and len(op.unseen)]
+    if unseen:  # the space no camera saw into, solid for the grasps: light crosses under the points
+        U = np.concatenate(unseen)
+        ax.scatter(U[:, a], U[:, b], s=4, marker="x", c="0.55", linewidths=0.4, alpha=0.35, zorder=0,
+                   label="unseen (solid for grasps)" if a == 0 and b == 1 else None)
+    for op in plan.objects:
+        if op.handover is not None and op.geometry is not None:
+            Q = op.geometry.points @ op.handover.T_move[:3, :3].T + op.handover.T_move[:3, 3]
+            ax.scatter(Q[:, a], Q[:, b], s=0.6, c="tan", linewidths=0)
+        if op.geometry is not None:
+            c = op.geometry.centre
+            ax.annotate(f"{op.id}: {op.mode}", (c[a], c[b]), fontsize=8, ha="center",
+                        bbox=dict(boxstyle="round,pad=0.2", fc="white", alpha=0.7))
+
+
+def _frame_view(ax, plan: GraspPlan, drawn: list, title: str, a: int, b: int) -> None:
+    """Title, bases, axes and limits of one view: the region that matters (the bases, the objects and the
+    grippers drawn), not far background points."""
+    if plan.T_b1_b2 is not None:
+        for name, T in (("b1", np.eye(4)), ("b2", plan.T_b1_b2)):
+            ax.plot(T[a, 3], T[b, 3], "k^", ms=8)
+            ax.annotate(name, (T[a, 3], T[b, 3]), textcoords="offset points", xytext=(5, 5))
+    ax.set_title(title)
+    ax.set_aspect("equal")
+    focus = [np.zeros(3)] + ([plan.T_b1_b2[:3, 3]] if plan.T_b1_b2 is not None else [])
+    focus += [op.geometry.centre for op in plan.objects if op.geometry is not None]
+    focus += [segs.reshape(-1, 3) for segs, _, _ in drawn]
+    F = np.vstack([np.atleast_2d(f) for f in focus])
+    lo, hi = F.min(axis=0) - 0.15, F.max(axis=0) + 0.15
+    ax.set_xlim(lo[a], hi[a])
+    ax.set_ylim(lo[b], hi[b])
+    ax.set_xlabel("xyz"[a] + " (m)")
+    ax.set_ylabel("xyz"[b] + " (m)")
+
+
+def draw_plan(path: str | Path, plan: GraspPlan, points: np.ndarray, labels: np.ndarray, max_points: int = 30000) -> None:
+    """grasps.png: top and side views of the cloud with each object's best grasp, joint pair and hand-over."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+
+    rng = np.random.default_rng(0)
+    sel = rng.choice(len(points), size=min(max_points, len(points)), replace=False)
+    P, L = points[sel], labels[sel]
+    cmap = plt.get_cmap("tab10")
+    colors = np.where(L[:, None] < 0, np.array([[0.75, 0.75, 0.75, 1.0]]), cmap(np.maximum(L, 0) % 10))
+    fig, axes = plt.subplots(1, 2, figsize=(14, 6.5))
+    views = [("top view (x-y in b1)", 0, 1), ("side view (x-z in b1)", 0, 2)]
+    drawn = _drawn_grippers(plan)
     for ax, (title, a, b) in zip(axes, views):
         order = np.argsort(P[:, 2] if b != 2 else P[:, 1])
         ax.scatter(P[order, a], P[order, b], s=0.6, c=colors[order], linewidths=0)
-        unseen = [op.unseen for op in plan.objects if op.unseen is not None and len(op.unseen)]
-        if unseen:  # the space no camera saw into, solid for the grasps: light crosses under the points
-            U = np.concatenate(unseen)
-            ax.scatter(U[:, a], U[:, b], s=4, marker="x", c="0.55", linewidths=0.4, alpha=0.35, zorder=0,
-                       label="unseen (solid for grasps)" if a == 0 and b == 1 else None)
-        for op in plan.objects:
-            if op.handover is not None and op.geometry is not None:
-                Q = op.geometry.points @ op.handover.T_move[:3, :3].T + op.handover.T_move[:3, 3]
-                ax.scatter(Q[:, a], Q[:, b], s=0.6, c="tan", linewidths=0)
-            if op.geometry is not None:
-                c = op.geometry.centre
-                ax.annotate(f"{op.id}: {op.mode}", (c[a], c[b]), fontsize=8, ha="center",
-                            bbox=dict(boxstyle="round,pad=0.2", fc="white", alpha=0.7))
+        _draw_objects(ax, plan, a, b)
         seen = set()
         for segs, col, lab in drawn:
             lc = LineCollection(segs[:, :, [a, b]], colors=col, linewidths=0.9,
                                 label=lab if lab not in seen else None)
             seen.add(lab)
             ax.add_collection(lc)
-        if plan.T_b1_b2 is not None:
-            for name, T in (("b1", np.eye(4)), ("b2", plan.T_b1_b2)):
-                ax.plot(T[a, 3], T[b, 3], "k^", ms=8)
-                ax.annotate(name, (T[a, 3], T[b, 3]), textcoords="offset points", xytext=(5, 5))
-        ax.set_title(title)
-        ax.set_aspect("equal")
-        # the region that matters: the bases, the objects and the grasps drawn, not far background points
-        focus = [np.zeros(3)] + ([plan.T_b1_b2[:3, 3]] if plan.T_b1_b2 is not None else [])
-        focus += [op.geometry.centre for op in plan.objects if op.geometry is not None]
-        focus += [segs.reshape(-1, 3) for segs, _, _ in drawn]
-        F = np.vstack([np.atleast_2d(f) for f in focus])
-        lo, hi = F.min(axis=0) - 0.15, F.max(axis=0) + 0.15
-        ax.set_xlim(lo[a], hi[a])
-        ax.set_ylim(lo[b], hi[b])
-        ax.set_xlabel("xyz"[a] + " (m)")
-        ax.set_ylabel("xyz"[b] + " (m)")
+        _frame_view(ax, plan, drawn, title, a, b)
     handles, labs = axes[0].get_legend_handles_labels()
     if handles:
         fig.legend(handles, labs, loc="lower center", ncol=4, fontsize=7)

@@ -120,166 +120,190 @@ def _without_near(octree: SceneOctree, points: np.ndarray, radius: float) -> Sce
     return SceneOctree(Q[~np.isfinite(d)], octree.resolution)
 
 
-def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, collider: GripperCollider,
-                  others: SceneOctree, params: PushParams = PushParams(), stats: dict | None = None) -> GraspSet:
-    """Push contacts on the four vertical faces of the object's box (kind ``"push"``), scored, best first.
+_STAT_KEYS = ("faces_seen", "unseen_beyond", "candidates", "off_face", "unseen", "outside_cone", "near_table",
+              "on_top_edge", "hits_object", "hits_scene", "kept")
 
-    ``depth`` holds -press; ``contact_width`` the object's width between this face and the opposite one;
-    ``extra["face"]`` (n, 2) the box axis and side of the face; ``extra["squeeze"]`` (n, 3) the direction
-    the gripper presses in (the face's inward normal, horizontal); ``extra["contact"]`` (n, 3) the point
-    midway between the fingertips' contacts with the face; ``extra["retreats"]`` (n, 3, 3) the three ways in
-    (unit directions from the contact to the pre-contact: along the face normal, along -z, up), NaN where that
-    way is blocked. ``stats`` (a dict) receives counts of the
-    candidates dropped at each check.
-    """
-    from ._score import CLEARANCE_LEVELS, WEIGHTS
 
-    P, N = geo.points, geo.normals
-    B = geo.T_b1_box
-    up = B[:3, 2]
-    ext = geo.extent
-    w = gripper.min_width  # fingers closed: one pad
-    cone_cos = float(np.cos(np.arctan(params.friction)))
-    fingers = [s for s in gripper.shapes if s.role == "finger"]
-    # fingertip corners in g (the 4 corners of each finger box nearest the tip), at the push opening
+@dataclass
+class _Face:
+    """One vertical face of the object's box, as the per-candidate checks need it (see :func:`_face`)."""
+
+    axis: int
+    sign: float
+    n: np.ndarray  # (3,) outward face normal
+    t: np.ndarray  # (3,) horizontal direction along the face
+    offset: float  # the face's distance from the box centre along n, measured from its own points
+    lat: np.ndarray  # (K,) the face's own points: along t from the centre
+    hgt: np.ndarray  # (K,) ... along up from the centre
+    observed: np.ndarray  # (K,) ... seen (not filled in by completion)
+    points: np.ndarray  # (K, 3) ... in b1
+    top: SceneOctree | None  # the object's top face inside this face (see ``PushParams.top_margin``)
+    planar: bool  # its points fit a plane within ``face_rms``
+    align: float  # |cos| between that plane's normal and n
+    rect: tuple | None  # ((lat lo, hi), (hgt lo, hi)) the range its points span
+
+
+def _fingertips(gripper: GripperModel, w: float) -> tuple[list[np.ndarray], np.ndarray]:
+    """Fingertip corners in g (the 4 corners of each finger box nearest the tip, (4, 3) each) and all the
+    gripper's box corners (M, 3), at opening ``w``."""
     tips = []
-    for s in fingers:
+    for s in (s for s in gripper.shapes if s.role == "finger"):
         c = s.corners_g(w)
         tips.append(c[np.argsort(-c[:, 2])[:4]])
-    all_corners = np.concatenate([s.corners_g(w) for s in gripper.shapes])
-    st = stats if stats is not None else {}
-    for k in ("faces_seen", "unseen_beyond", "candidates", "off_face", "unseen", "outside_cone", "near_table",
-              "on_top_edge", "hits_object", "hits_scene", "kept"):
-        st[k] = 0
-    rows = []  # (T, face axis, face sign, height fraction, tilt, pad alignment, contact width, n, seen, contact)
-    tops = {}  # (axis, sign) -> octree of the top face's points inside that face (see ``top_margin``)
-    for axis in (0, 1):
-        for sign in (1.0, -1.0):
-            n = sign * B[:3, axis]  # outward face normal
-            t = np.cross(up, n)
-            half = 0.5 * ext[axis]
-            rel = P - geo.centre
-            along, lat, hgt = rel @ n, rel @ t, rel @ up
-            near_face = (along > half - 0.02) & (np.abs(lat) < 0.5 * ext[1 - axis])
-            if near_face.sum() < 2 * params.min_pad_points:
-                continue  # a face the cameras did not see: no blind pushes
-            st["faces_seen"] += 1
-            if not (near_face & (N @ n > 0.7) & geo.observed).any():
-                # a face only completed by symmetry: pushed only where the scene beyond it was seen
-                ro = others.points - geo.centre
-                a_o = ro @ n
-                beyond = ((a_o > half + params.beyond[0]) & (a_o < half + params.beyond[1])
-                          & (np.abs(ro @ t) < 0.5 * ext[1 - axis]))
-                if beyond.sum() < params.beyond_min_points:
-                    st["unseen_beyond"] += 1
-                    continue
-            # the face's depth from its own points (normals along n), not from the sides' edge points near it
-            own_face = near_face & (N @ n > 0.7)
-            face_off = float(np.median(along[own_face])) if own_face.sum() >= params.min_pad_points \
-                else float(np.percentile(along[near_face], 90))
-            on_face = np.abs(along - face_off) < params.pad_depth
-            # the face's own points, for the per-fingertip tests below (the same points as masking all of them)
-            f_lat, f_hgt, f_obs, f_P = lat[on_face], hgt[on_face], geo.observed[on_face], P[on_face]
-            top = (N @ up > 0.8) & (hgt > 0.5 * ext[2] - 0.02) & (along < face_off - params.pad_depth)
-            tops[(axis, sign)] = SceneOctree(P[top], 0.002) if top.any() else None
-            # the face as a whole: planar (a plane fits its points within face_rms) and inside the friction
-            # cone; then a fingertip on a part of it no camera saw still lands on it (the box model)
-            planar, face_align, rect = False, 0.0, None
-            if on_face.sum() >= 10:
-                Qf = P[on_face] - P[on_face].mean(axis=0)
-                _, sv, Vt = np.linalg.svd(Qf, full_matrices=False)
-                planar = float(sv[-1] / np.sqrt(len(Qf))) < params.face_rms
-                face_align = abs(float(Vt[-1] @ n))
-                rect = (np.percentile(lat[on_face], [2, 98]), np.percentile(hgt[on_face], [2, 98]))
-            for hf in params.heights:
-                c = geo.centre + face_off * n + hf * 0.5 * ext[2] * up
-                frames = []
-                for tilt in params.tilts:
-                    turns = [(sw, 0.0) for sw in params.swivels]
-                    if tilt >= params.lean_min_tilt:
-                        turns += [(0.0, ln) for ln in params.leans]
-                    for swivel, lean in turns:
-                        # swivel: the approach turned about the vertical, away from the face normal
-                        h_dir = np.cos(swivel) * n + np.sin(swivel) * t
-                        z = -np.cos(tilt) * h_dir - np.sin(tilt) * up
-                        # lean: the approach turned about the face normal, its top towards t (the pad's
-                        # plane stays on the face): an arm beside the face, not in front of it, carries a
-                        # steep gripper up only when it leans away from the arm's base
-                        z = np.cos(lean) * z + np.sin(lean) * _cross3(n, z) + (1 - np.cos(lean)) * (n @ z) * n
-                        # the fingers are closed into one pad (2 x 2 cm for the Piper), so the press is
-                        # symmetric about the gripper whatever its roll about z; the rolls only help the arm
-                        # reach it
-                        zt = _cross3(z, t)
-                        zt /= np.linalg.norm(zt)
-                        tz = _cross3(zt, z)  # t made perpendicular to z (it is not when swivelled)
-                        for roll in params.rolls:
-                            y = np.cos(roll) * tz + np.sin(roll) * zt
-                            y = y / np.linalg.norm(y)
-                            frames.append((tilt, np.stack([_cross3(y, z), y, z], axis=1)))
-                for tilt, R in frames:
-                    # fingertips on the face: shift along the normal so the deepest tip corner touches it
-                    depth_c = [(tc @ R.T) @ -n for tc in tips]
-                    pen = max(float(dc.max()) for dc in depth_c)
-                    o = c + n * pen
-                    touch = np.concatenate([tc[dc >= dc.max() - 1e-6] for tc, dc in zip(tips, depth_c)])
-                    contact = touch.mean(axis=0) @ R.T + o  # where the fingertips meet the face (b1)
-                    T = np.eye(4)
-                    T[:3, :3], T[:3, 3] = R, o
-                    # the pads on the face: inside the box's face, and at least one of them on seen face
-                    # points whose normals are inside the friction cone (a face is often seen only in part:
-                    # the other pad then rests on the box model of the face, which the score marks down)
-                    landed, seen, align, inside = 0, 0, 1.0, True
-                    for tc in tips:
-                        tw = tc @ R.T + o - geo.centre
-                        lo_l, hi_l = (tw @ t).min() - 0.002, (tw @ t).max() + 0.002
-                        lo_h, hi_h = (tw @ up).min() - 0.002, (tw @ up).max() + 0.002
-                        inside &= (max(abs(lo_l), abs(hi_l)) <= 0.5 * ext[1 - axis] - params.edge_margin
-                                   and lo_h >= -0.5 * ext[2] + params.edge_margin and hi_h <= 0.5 * ext[2] - params.edge_margin)
-                        # the face around the fingertip (within fit_radius of it): points there, and a
-                        # plane fitted to them (per-point normals of a face seen at a grazing angle are
-                        # too noisy; a sparse face still has a well-defined plane)
-                        mid_l, mid_h = 0.5 * (lo_l + hi_l), 0.5 * (lo_h + hi_h)
-                        around = np.hypot(f_lat - mid_l, f_hgt - mid_h) < params.fit_radius
-                        if around.sum() >= params.min_pad_points:
-                            landed += 1
-                            seen += (around & f_obs).sum() >= params.min_pad_points
-                            Q = f_P[around] - f_P[around].mean(axis=0)
-                            normal = np.linalg.svd(Q, full_matrices=False)[2][-1]
-                            align = min(align, abs(float(normal @ n)))
-                        elif planar and rect[0][0] <= mid_l <= rect[0][1] and rect[1][0] <= mid_h <= rect[1][1]:
-                            landed += 1  # on the face's plane, between points seen around it
-                            align = min(align, face_align)
-                    st["candidates"] += 1
-                    if not inside or landed < len(tips) or align < cone_cos:
-                        st["off_face" if not inside else "unseen" if landed < len(tips) else "outside_cone"] += 1
-                        continue
-                    # the whole gripper above the table by the margin
-                    if support.elevation(all_corners @ R.T + o).min() < params.scene_margin + 0.002:
-                        st["near_table"] += 1
-                        continue
-                    rows.append((T, axis, sign, hf, tilt, align, ext[axis], n, seen / len(tips), contact))
-    if not rows:
-        return GraspSet.empty(geo.id, kind="push")
-    T = np.stack([r[0] for r in rows])
-    nrm = np.stack([r[7] for r in rows])
-    T_off = T.copy()
-    T_off[:, :3, 3] += params.standoff * nrm  # held off the face for the approach check
-    wv = np.full(len(T), w)
-    own = SceneOctree(P, 0.002)
-    # the way in, from the pre-contact: back along the face normal, or back along the approach axis (from
-    # above, for a tilted gripper), or straight up; each is checked at the contact (held off) and at points back to the
-    # pre-contact, and kept when free: the arm's reach filter may use either
-    # ... or straight down from above: an arm near the face's own base reaches the contact with a steep
-    # gripper but not a pre-contact 9 cm back towards its base
-    retreats = np.stack([nrm, -T[:, :3, 2], np.broadcast_to(up, nrm.shape)], axis=1)  # (n, 3, 3)
-    path_ok = np.zeros((len(T), retreats.shape[1]), dtype=bool)
-    hit_obj = np.zeros(len(T), dtype=bool)
-    # the task's own check of the same moves: its approach comes in along the way in right up to the contact
-    # (not held off), then its squeeze presses ``press`` past the face along the inward normal; it checks
-    # them against the scene without what lies within ``cut_radius`` of the object, with its contact margin.
-    # Held off by the standoff alone, a fingertip sliding in low beside the face or past a neighbour's edge
-    # was accepted here and then touched the task's map in the last millimetres.
-    contact_map = _without_near(others, P, params.cut_radius)
+    return tips, np.concatenate([s.corners_g(w) for s in gripper.shapes])
+
+
+def _seen_beyond(geo: ObjectGeometry, others: SceneOctree, n: np.ndarray, t: np.ndarray, half: float, width: float,
+                 params: PushParams) -> bool:
+    """Whether the rest of the scene was seen past the face with outward normal ``n`` (see ``beyond``)."""
+    ro = others.points - geo.centre
+    a_o = ro @ n
+    beyond = ((a_o > half + params.beyond[0]) & (a_o < half + params.beyond[1]) & (np.abs(ro @ t) < 0.5 * width))
+    return beyond.sum() >= params.beyond_min_points
+
+
+def _face(geo: ObjectGeometry, others: SceneOctree, axis: int, sign: float, params: PushParams,
+          st: dict) -> _Face | None:
+    """The face of the box on ``axis`` at ``sign``, or None when it may not be pushed (not seen, or only
+    completed by symmetry with nothing seen beyond it)."""
+    P, N, up, ext = geo.points, geo.normals, geo.T_b1_box[:3, 2], geo.extent
+    n = sign * geo.T_b1_box[:3, axis]  # outward face normal
+    t = np.cross(up, n)
+    half = 0.5 * ext[axis]
+    rel = P - geo.centre
+    along, lat, hgt = rel @ n, rel @ t, rel @ up
+    near_face = (along > half - 0.02) & (np.abs(lat) < 0.5 * ext[1 - axis])
+    if near_face.sum() < 2 * params.min_pad_points:
+        return None  # a face the cameras did not see: no blind pushes
+    st["faces_seen"] += 1
+    if not (near_face & (N @ n > 0.7) & geo.observed).any():
+        # a face only completed by symmetry: pushed only where the scene beyond it was seen
+        if not _seen_beyond(geo, others, n, t, half, ext[1 - axis], params):
+            st["unseen_beyond"] += 1
+            return None
+    # the face's depth from its own points (normals along n), not from the sides' edge points near it
+    own_face = near_face & (N @ n > 0.7)
+    face_off = float(np.median(along[own_face])) if own_face.sum() >= params.min_pad_points \
+        else float(np.percentile(along[near_face], 90))
+    on_face = np.abs(along - face_off) < params.pad_depth
+    top = (N @ up > 0.8) & (hgt > 0.5 * ext[2] - 0.02) & (along < face_off - params.pad_depth)
+    # the face as a whole: planar (a plane fits its points within face_rms) and inside the friction
+    # cone; then a fingertip on a part of it no camera saw still lands on it (the box model)
+    planar, face_align, rect = False, 0.0, None
+    if on_face.sum() >= 10:
+        Qf = P[on_face] - P[on_face].mean(axis=0)
+        _, sv, Vt = np.linalg.svd(Qf, full_matrices=False)
+        planar = float(sv[-1] / np.sqrt(len(Qf))) < params.face_rms
+        face_align = abs(float(Vt[-1] @ n))
+        rect = (np.percentile(lat[on_face], [2, 98]), np.percentile(hgt[on_face], [2, 98]))
+    return _Face(axis, sign, n, t, face_off, lat[on_face], hgt[on_face], geo.observed[on_face], P[on_face],
+                 SceneOctree(P[top], 0.002) if top.any() else None, planar, face_align, rect)
+
+
+def _frames(face: _Face, up: np.ndarray, params: PushParams) -> list[tuple[float, np.ndarray]]:
+    """``(tilt, R_b1_g (3, 3))`` of every gripper orientation tried on ``face``: tilts, swivels, leans, rolls."""
+    n, t = face.n, face.t
+    frames = []
+    for tilt in params.tilts:
+        turns = [(sw, 0.0) for sw in params.swivels]
+        if tilt >= params.lean_min_tilt:
+            turns += [(0.0, ln) for ln in params.leans]
+        for swivel, lean in turns:
+            # swivel: the approach turned about the vertical, away from the face normal
+            h_dir = np.cos(swivel) * n + np.sin(swivel) * t
+            z = -np.cos(tilt) * h_dir - np.sin(tilt) * up
+            # lean: the approach turned about the face normal, its top towards t (the pad's plane stays on
+            # the face): an arm beside the face, not in front of it, carries a steep gripper up only when it
+            # leans away from the arm's base
+            z = np.cos(lean) * z + np.sin(lean) * _cross3(n, z) + (1 - np.cos(lean)) * (n @ z) * n
+            # the fingers are closed into one pad (2 x 2 cm for the Piper), so the press is symmetric about
+            # the gripper whatever its roll about z; the rolls only help the arm reach it
+            zt = _cross3(z, t)
+            zt /= np.linalg.norm(zt)
+            tz = _cross3(zt, z)  # t made perpendicular to z (it is not when swivelled)
+            for roll in params.rolls:
+                y = np.cos(roll) * tz + np.sin(roll) * zt
+                y = y / np.linalg.norm(y)
+                frames.append((tilt, np.stack([_cross3(y, z), y, z], axis=1)))
+    return frames
+
+
+def _pads(geo: ObjectGeometry, face: _Face, tips: list[np.ndarray], R: np.ndarray, o: np.ndarray,
+          params: PushParams) -> tuple[int, int, float, bool]:
+    """``(landed, seen, align, inside)`` of the fingertips at pose (R, o) on ``face``.
+
+    The pads must lie inside the box's face, and each on seen face points whose local plane is inside the
+    friction cone, or (on a planar face) between its points (a face is often seen only in part: the pad then
+    rests on the box model of the face, which the score marks down).
+    """
+    up, ext = geo.T_b1_box[:3, 2], geo.extent
+    landed, seen, align, inside = 0, 0, 1.0, True
+    for tc in tips:
+        tw = tc @ R.T + o - geo.centre
+        lo_l, hi_l = (tw @ face.t).min() - 0.002, (tw @ face.t).max() + 0.002
+        lo_h, hi_h = (tw @ up).min() - 0.002, (tw @ up).max() + 0.002
+        inside &= (max(abs(lo_l), abs(hi_l)) <= 0.5 * ext[1 - face.axis] - params.edge_margin
+                   and lo_h >= -0.5 * ext[2] + params.edge_margin and hi_h <= 0.5 * ext[2] - params.edge_margin)
+        # the face around the fingertip (within fit_radius of it): points there, and a plane fitted to them
+        # (per-point normals of a face seen at a grazing angle are too noisy; a sparse face still has a
+        # well-defined plane)
+        mid_l, mid_h = 0.5 * (lo_l + hi_l), 0.5 * (lo_h + hi_h)
+        around = np.hypot(face.lat - mid_l, face.hgt - mid_h) < params.fit_radius
+        if around.sum() >= params.min_pad_points:
+            landed += 1
+            seen += (around & face.observed).sum() >= params.min_pad_points
+            Q = face.points[around] - face.points[around].mean(axis=0)
+            normal = np.linalg.svd(Q, full_matrices=False)[2][-1]
+            align = min(align, abs(float(normal @ face.n)))
+        elif face.planar and face.rect[0][0] <= mid_l <= face.rect[0][1] and face.rect[1][0] <= mid_h <= face.rect[1][1]:
+            landed += 1  # on the face's plane, between points seen around it
+            align = min(align, face.align)
+    return landed, seen, align, inside
+
+
+def _face_rows(geo: ObjectGeometry, support: Support, face: _Face, tips: list[np.ndarray], all_corners: np.ndarray,
+               cone_cos: float, params: PushParams, st: dict) -> list[tuple]:
+    """The candidates on ``face`` that pass the per-pose checks (pads on the face, gripper above the table),
+    as rows ``(T, face axis, face sign, height fraction, tilt, pad alignment, contact width, n, seen, contact)``."""
+    up, ext, n = geo.T_b1_box[:3, 2], geo.extent, face.n
+    frames = _frames(face, up, params)
+    rows = []
+    for hf in params.heights:
+        c = geo.centre + face.offset * n + hf * 0.5 * ext[2] * up
+        for tilt, R in frames:
+            # fingertips on the face: shift along the normal so the deepest tip corner touches it
+            depth_c = [(tc @ R.T) @ -n for tc in tips]
+            pen = max(float(dc.max()) for dc in depth_c)
+            o = c + n * pen
+            touch = np.concatenate([tc[dc >= dc.max() - 1e-6] for tc, dc in zip(tips, depth_c)])
+            contact = touch.mean(axis=0) @ R.T + o  # where the fingertips meet the face (b1)
+            T = np.eye(4)
+            T[:3, :3], T[:3, 3] = R, o
+            landed, seen, align, inside = _pads(geo, face, tips, R, o, params)
+            st["candidates"] += 1
+            if not inside or landed < len(tips) or align < cone_cos:
+                st["off_face" if not inside else "unseen" if landed < len(tips) else "outside_cone"] += 1
+                continue
+            # the whole gripper above the table by the margin
+            if support.elevation(all_corners @ R.T + o).min() < params.scene_margin + 0.002:
+                st["near_table"] += 1
+                continue
+            rows.append((T, face.axis, face.sign, hf, tilt, align, ext[face.axis], n, seen / len(tips), contact))
+    return rows
+
+
+def _contact_free(collider: GripperCollider, contact_map: SceneOctree, tops: dict, rows: list[tuple],
+                  T: np.ndarray, nrm: np.ndarray, wv: np.ndarray, params: PushParams,
+                  st: dict) -> tuple[np.ndarray, np.ndarray]:
+    """``(at_contact, under_top)`` (n,) bool: the task's own check of the contact and the squeeze.
+
+    The task's approach comes in along the way in right up to the contact (not held off), then its squeeze
+    presses ``press`` past the face along the inward normal; it checks them against the scene without what
+    lies within ``cut_radius`` of the object, with its contact margin (held off by the standoff alone, a
+    fingertip sliding in low beside the face or past a neighbour's edge would pass here and then touch the
+    task's map in the last millimetres). Pressed ``press + face_shortfall`` deep, the gripper must also keep
+    ``top_margin`` from the object's top face.
+    """
     T_in = T.copy()
     T_in[:, :3, 3] -= params.press * nrm
     at_contact = ~collider.collides(contact_map, T, wv, swept=False, margin=params.contact_margin)
@@ -294,7 +318,19 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
         if tree is not None and len(idx):
             under_top[idx] = ~collider.collides(tree, T_deep[idx], wv[idx], swept=False, margin=params.top_margin)
     st["on_top_edge"] = int((at_contact & ~under_top).sum())
-    at_contact &= under_top
+    return at_contact & under_top, under_top
+
+
+def _ways_in(collider: GripperCollider, own: SceneOctree, others: SceneOctree, contact_map: SceneOctree,
+             T: np.ndarray, T_off: np.ndarray, wv: np.ndarray, retreats: np.ndarray, at_contact: np.ndarray,
+             params: PushParams) -> tuple[np.ndarray, np.ndarray]:
+    """``(path_ok (n, 3), hit_obj (n,))``: which ways in are free, and which contacts (held off) hit the object.
+
+    Each way is checked at the contact held off by the standoff and at points back to the pre-contact,
+    against the object and the scene, then from the contact itself against the task's contact map.
+    """
+    path_ok = np.zeros((len(T), retreats.shape[1]), dtype=bool)
+    hit_obj = np.zeros(len(T), dtype=bool)
     for r in range(retreats.shape[1]):
         free = at_contact.copy()
         for dist in np.linspace(0.0, params.approach, 4):
@@ -309,16 +345,15 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
             Tk[:, :3, 3] += dist * retreats[:, r]
             free[free] = ~collider.collides(contact_map, Tk[free], wv[free], swept=False, margin=params.contact_margin)
         path_ok[:, r] = free
-    free = path_ok.any(axis=1)
-    st["hits_object"] = int(hit_obj.sum())
-    st["hits_scene"] = int((~free & ~hit_obj & under_top).sum())
-    st["kept"] = int(free.sum())
-    keep = np.nonzero(free)[0]
-    if len(keep) == 0:
-        return GraspSet.empty(geo.id, kind="push")
-    rows = [rows[i] for i in keep]
-    T, T_off, nrm, wv = T[keep], T_off[keep], nrm[keep], wv[keep]
-    retreats = np.where(path_ok[keep][:, :, None], retreats[keep], np.nan)
+    return path_ok, hit_obj
+
+
+def _scored(geo: ObjectGeometry, collider: GripperCollider, others: SceneOctree, rows: list[tuple], T: np.ndarray,
+            T_off: np.ndarray, nrm: np.ndarray, wv: np.ndarray, retreats: np.ndarray, cone_cos: float,
+            params: PushParams) -> GraspSet:
+    """The kept candidates as a push :class:`GraspSet` with their score terms, best first."""
+    from ._score import CLEARANCE_LEVELS, WEIGHTS
+
     clear = collider.clearance(others, T_off, wv, CLEARANCE_LEVELS) / CLEARANCE_LEVELS[-1]
     tilt = np.array([r[4] for r in rows])
     hf = np.array([r[3] for r in rows])
@@ -336,3 +371,59 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
                   kind="push", extra={"face": np.array([(r[1], r[2]) for r in rows]), "squeeze": -nrm,
                                       "contact": np.array([r[9] for r in rows]), "retreats": retreats})
     return gs.take(np.argsort(-score))
+
+
+def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, collider: GripperCollider,
+                  others: SceneOctree, params: PushParams = PushParams(), stats: dict | None = None) -> GraspSet:
+    """Push contacts on the four vertical faces of the object's box (kind ``"push"``), scored, best first.
+
+    ``depth`` holds -press; ``contact_width`` the object's width between this face and the opposite one;
+    ``extra["face"]`` (n, 2) the box axis and side of the face; ``extra["squeeze"]`` (n, 3) the direction
+    the gripper presses in (the face's inward normal, horizontal); ``extra["contact"]`` (n, 3) the point
+    midway between the fingertips' contacts with the face; ``extra["retreats"]`` (n, 3, 3) the three ways in
+    (unit directions from the contact to the pre-contact: along the face normal, along -z, up), NaN where that
+    way is blocked. ``stats`` (a dict) receives counts of the
+    candidates dropped at each check.
+    """
+    up = geo.T_b1_box[:3, 2]
+    w = gripper.min_width  # fingers closed: one pad
+    cone_cos = float(np.cos(np.arctan(params.friction)))
+    tips, all_corners = _fingertips(gripper, w)
+    st = stats if stats is not None else {}
+    for k in _STAT_KEYS:
+        st[k] = 0
+    rows = []  # (T, face axis, face sign, height fraction, tilt, pad alignment, contact width, n, seen, contact)
+    tops = {}  # (axis, sign) -> octree of the top face's points inside that face (see ``top_margin``)
+    for axis in (0, 1):
+        for sign in (1.0, -1.0):
+            face = _face(geo, others, axis, sign, params, st)
+            if face is None:
+                continue
+            tops[(axis, sign)] = face.top
+            rows += _face_rows(geo, support, face, tips, all_corners, cone_cos, params, st)
+    if not rows:
+        return GraspSet.empty(geo.id, kind="push")
+    T = np.stack([r[0] for r in rows])
+    nrm = np.stack([r[7] for r in rows])
+    T_off = T.copy()
+    T_off[:, :3, 3] += params.standoff * nrm  # held off the face for the approach check
+    wv = np.full(len(T), w)
+    # the ways in, from the pre-contact: back along the face normal, back along the approach axis (from above,
+    # for a tilted gripper), or straight up (an arm near the face's own base reaches the contact with a steep
+    # gripper but not a pre-contact 9 cm back towards its base); kept when free: the arm's reach filter may
+    # use any of them
+    retreats = np.stack([nrm, -T[:, :3, 2], np.broadcast_to(up, nrm.shape)], axis=1)  # (n, 3, 3)
+    contact_map = _without_near(others, geo.points, params.cut_radius)
+    at_contact, under_top = _contact_free(collider, contact_map, tops, rows, T, nrm, wv, params, st)
+    path_ok, hit_obj = _ways_in(collider, SceneOctree(geo.points, 0.002), others, contact_map, T, T_off, wv,
+                                retreats, at_contact, params)
+    free = path_ok.any(axis=1)
+    st["hits_object"] = int(hit_obj.sum())
+    st["hits_scene"] = int((~free & ~hit_obj & under_top).sum())
+    st["kept"] = int(free.sum())
+    keep = np.nonzero(free)[0]
+    if len(keep) == 0:
+        return GraspSet.empty(geo.id, kind="push")
+    retreats = np.where(path_ok[keep][:, :, None], retreats[keep], np.nan)
+    return _scored(geo, collider, others, [rows[i] for i in keep], T[keep], T_off[keep], nrm[keep], wv[keep],
+                   retreats, cone_cos, params)

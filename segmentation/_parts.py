@@ -10,8 +10,8 @@ A region S adjacent to a bigger region N is attached to N when
 
 Among the parts that do not reach the table, thin ones (under 3 cm wide) join N when they hang off its side
 below its top (a handle) or, at least a fifth of N's size, rise above N's top from its upper part (a bunny's
-ears beside its head: split off at the concave junction, on the task bench's seed 9 the task then picked
-the body and the ears stood in the closing fingers' way).
+ears beside its head: split off at the concave junction, a grasp of the body alone would close its
+fingers on the ears).
 
 A touching neighbour that stands on the table beside N is left alone; a box stacked on N is left alone.
 Tiny regions (fewer than ``min_object_voxels``) join the neighbour with the best affinity when they rise
@@ -66,7 +66,7 @@ def core_hull(xy: np.ndarray, cell: float = 0.004, radius: float = CORE_RADIUS) 
 
     The contraction leaves a few voxels of a touching neighbour's side in a region; the plain hull then
     spans the gap to them and covers the neighbour, which the footprint test below took for a part of the
-    region (a cylinder against a carton's side was merged into it on two of the task bench's scenes)."""
+    region (a cylinder standing against a carton's side would be merged into the carton)."""
     import cv2
     from scipy import ndimage
 

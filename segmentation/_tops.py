@@ -1,9 +1,9 @@
 """Split a region that holds two objects with flat tops at different heights side by side.
 
 In a noisy foundation-model cloud the junction where a small box stands against a carton's side is a few
-voxels whose normals blur into a convex crease; the contraction then joins the two (on the task bench a
-4 cm box and a 13 cm can were each merged into a carton this way, and the pushes meant for the carton's
-face pressed the neighbour). Their tops still tell them apart: each is a flat, upward-facing plateau, at
+voxels whose normals blur into a convex crease; the contraction then joins the two (and a grasp planned
+for the merged region's face can press the neighbour; cases: docs/segmentation.md). Their tops still tell
+them apart: each is a flat, upward-facing plateau, at
 its own height, over its own footprint. Parts of one object do not look like that: a mug's inside bottom
 lies within its rim's footprint, a duck's or a bunny's back is not flat, and two touching boxes of the same
 height give one plateau.
@@ -18,7 +18,7 @@ segmenter's own measures (voxels, footprint size).
 
 Two tops within ``MIN_DROP`` of each other make one plateau; where another object's top bulges out of a
 plateau's outline, joined to it along a short chord between two deep concave corners, the bulge is cut off
-as a plateau of its own (``_bump``; on the task bench a can 3 mm taller than the carton it stood against).
+as a plateau of its own (``_bump``: e.g. a can only a few millimetres taller than the carton it stands against).
 """
 
 from __future__ import annotations
@@ -84,8 +84,9 @@ def _bump(xy: np.ndarray) -> np.ndarray | None:
     """(M,) bool: the points of a plateau footprint ``xy`` (M, 2) in a second object's top that bulges out
     of it (module constants ``BUMP_*``), or None. The footprint is rasterised and closed (OpenCV); its
     outline's two deepest convexity defects, each ``BUMP_DEPTH`` deep, are joined by a chord of at most
-    ``BUMP_CUT``; cut there, the smaller piece must be ``BUMP_SIDES`` wide. On the task bench's 40 clouds only
-    seed 16's can beside its carton passes; notches in a carton's noisy rim are shallower or far apart."""
+    ``BUMP_CUT``; cut there, the smaller piece must be ``BUMP_SIDES`` wide. The thresholds let a can's disc
+    bulging out of a carton's top through and keep notches in a carton's noisy rim (shallower, or far apart)
+    from being cut (measured cases: docs/segmentation.md)."""
     import cv2
 
     cell = BUMP_CELL

@@ -87,8 +87,8 @@ def obb_of_points(P: np.ndarray, padding: float = 0.0, axis: np.ndarray | None =
     The box's axes are the points' principal axes; with ``axis`` (3,) (e.g. the table normal, for an
     object extruded down to the table) also the box with one edge along it and the least-area rectangle
     about it, and whichever of the two has the smaller volume is returned. Principal axes alone bloat a
-    box-like object whose extents are close (a near-cube's covariance has no preferred axes): up to 40 %
-    more volume on the task bench's objects.
+    box-like object whose extents are close (a near-cube's covariance has no preferred axes), by tens of
+    percent in volume (measured: docs/motion.md).
     """
     P = np.asarray(P, dtype=np.float64)
     c = P.mean(axis=0)

@@ -352,13 +352,29 @@ class CollisionWorld:
         return self._tab
 
     def _check(self, Qs: list[np.ndarray], n: int, explain: bool = False) -> tuple[np.ndarray, list[str]]:
-        import coal
+        """(n,) validity of a batch and, with ``explain``, the collisions of configuration 0 as text.
 
+        Broad phase (scene bounds, then capsule pairs) decides what it can; coal decides the rest.
+        """
         self.stats["configs"] += n
         tab = self._tables()
         ok = np.ones(n, dtype=bool)
         reasons: list[str] = []
-        # placements; an arm held at one configuration is evaluated once and broadcast
+        undecided: list[tuple] = []  # (config, "scene", global shape) or (config, "pair", pair index)
+        W, A, B, samples = self._place(Qs, n)
+        if self.scene is not None:
+            self._scene_bounds(tab, samples, ok, reasons, undecided, explain)
+        if len(tab["pairs"]):
+            self._pair_bounds(tab, A, B, ok, reasons, undecided, explain)
+        if undecided:
+            self._narrow_phase(tab, W, undecided, ok, reasons, explain)
+        return ok, reasons
+
+    def _place(self, Qs: list[np.ndarray], n: int) -> tuple[list[np.ndarray], np.ndarray, np.ndarray, list]:
+        """Shape placements per arm, capsule end points A, B (n, S, 3) over all arms, and scene samples per arm.
+
+        An arm held at one configuration is evaluated once and broadcast over the batch.
+        """
         W, As, Bs, samples = [], [], [], []
         for a, Q in zip(self.arms, Qs):
             Wa = a.placements(Q if Q.ndim == 2 else Q[None])
@@ -372,77 +388,80 @@ class CollisionWorld:
             samples.append(Sm)
         A = np.concatenate(As, axis=1) if len(As) > 1 else As[0]
         B = np.concatenate(Bs, axis=1) if len(Bs) > 1 else Bs[0]
+        return W, A, B, samples
+
+    def _scene_bounds(self, tab: dict, samples: list, ok: np.ndarray, reasons: list[str], undecided: list[tuple],
+                      explain: bool) -> None:
+        """Broad phase against the scene: distance-field bounds per shape; updates ``ok`` and ``undecided``."""
+        sm, names = self.scene, tab["names"]
+        Sm = np.concatenate(samples, axis=1) if len(samples) > 1 else samples[0]
+        dmin = np.minimum.reduceat(sm.lookup(Sm), tab["sample_start"], axis=1)  # (n, S)
+        lb = dmin - (sm.slack_lower + tab["cover"])
+        clear = (lb >= self.margin) | tab["fixed"]  # the base stands on the table: never checked
+        hit = (~clear) & tab["exact"] & (dmin + (sm.slack_upper - tab["radius"]) < self.margin)
+        ok &= ~hit.any(axis=1)
+        if explain:
+            reasons += [f"{names[s][0]} {names[s][1]} touches the scene map" for s in np.nonzero(hit[0])[0]]
+        for i, s in zip(*np.nonzero(~clear & ~hit)):
+            undecided.append((i, "scene", s))
+
+    def _pair_bounds(self, tab: dict, A: np.ndarray, B: np.ndarray, ok: np.ndarray, reasons: list[str],
+                     undecided: list[tuple], explain: bool) -> None:
+        """Broad phase for self and arm-vs-arm pairs: exact capsule distances; updates ``ok`` and ``undecided``."""
+        P = tab["pairs"]
+        # bounding spheres first (centre of the segment, half length + radius); exact segment distances
+        # only for the pairs whose spheres come within the margin
+        C = 0.5 * (A + B)
+        rs = 0.5 * np.linalg.norm(B - A, axis=-1) + tab["radius"]
+        dc = C[:, P[:, 0]] - C[:, P[:, 1]]
+        near = np.einsum("npi,npi->np", dc, dc) < (rs[:, P[:, 0]] + rs[:, P[:, 1]] + tab["pair_margin"]) ** 2
+        clear = ~near
+        ii, pp = np.nonzero(near)
+        if len(ii):
+            g1, g2 = P[pp, 0], P[pp, 1]
+            d = segment_distance(A[ii, g1], B[ii, g1], A[ii, g2], B[ii, g2]) - tab["pair_rsum"][pp]
+            clear[ii, pp] = d >= tab["pair_margin"][pp]
+        hit = (~clear) & tab["pair_exact"]
+        ok &= ~hit.any(axis=1)
+        if explain:
+            reasons += [self._pair_text(tab, tab["names"], p) for p in np.nonzero(hit[0])[0]]
+        for i, p in zip(*np.nonzero(~clear & ~hit)):
+            undecided.append((i, "pair", p))
+
+    def _narrow_phase(self, tab: dict, W: list[np.ndarray], undecided: list[tuple], ok: np.ndarray,
+                      reasons: list[str], explain: bool) -> None:
+        """coal.collide for what the bounds could not decide (skipping configurations already in collision)."""
+        import coal
 
         def w(k, i):  # placements of arm k for configuration i (broadcast for held arms)
             return W[k][i if len(W[k]) > 1 else 0]
 
-        undecided: list[tuple] = []  # (config, "scene", global shape) or (config, "pair", pair index)
-        names = tab["names"]
-
-        # ---- scene: distance-field bounds per shape
-        if self.scene is not None:
-            sm = self.scene
-            Sm = np.concatenate(samples, axis=1) if len(samples) > 1 else samples[0]
-            dmin = np.minimum.reduceat(sm.lookup(Sm), tab["sample_start"], axis=1)  # (n, S)
-            lb = dmin - (sm.slack_lower + tab["cover"])
-            clear = (lb >= self.margin) | tab["fixed"]  # the base stands on the table: never checked
-            hit = (~clear) & tab["exact"] & (dmin + (sm.slack_upper - tab["radius"]) < self.margin)
-            ok &= ~hit.any(axis=1)
-            if explain:
-                reasons += [f"{names[s][0]} {names[s][1]} touches the scene map" for s in np.nonzero(hit[0])[0]]
-            for i, s in zip(*np.nonzero(~clear & ~hit)):
-                undecided.append((i, "scene", s))
-
-        # ---- self and arm-vs-arm: exact capsule distances
-        P = tab["pairs"]
-        if len(P):
-            # bounding spheres first (centre of the segment, half length + radius); exact segment distances
-            # only for the pairs whose spheres come within the margin
-            C = 0.5 * (A + B)
-            rs = 0.5 * np.linalg.norm(B - A, axis=-1) + tab["radius"]
-            dc = C[:, P[:, 0]] - C[:, P[:, 1]]
-            near = np.einsum("npi,npi->np", dc, dc) < (rs[:, P[:, 0]] + rs[:, P[:, 1]] + tab["pair_margin"]) ** 2
-            clear = ~near
-            ii, pp = np.nonzero(near)
-            if len(ii):
-                g1, g2 = P[pp, 0], P[pp, 1]
-                d = segment_distance(A[ii, g1], B[ii, g1], A[ii, g2], B[ii, g2]) - tab["pair_rsum"][pp]
-                clear[ii, pp] = d >= tab["pair_margin"][pp]
-            hit = (~clear) & tab["pair_exact"]
-            ok &= ~hit.any(axis=1)
-            if explain:
-                reasons += [self._pair_text(tab, names, p) for p in np.nonzero(hit[0])[0]]
-            for i, p in zip(*np.nonzero(~clear & ~hit)):
-                undecided.append((i, "pair", p))
-
-        # ---- narrow phase (coal) for what the bounds could not decide
-        if undecided:
-            req, res = coal.CollisionRequest(), coal.CollisionResult()
-            ident = coal.Transform3s()
-            for i, kind, x in undecided:
-                if not ok[i] and not explain:
-                    continue
-                self.stats["narrow"] += 1
-                res.clear()
-                if kind == "scene":
-                    k, s = tab["arm_of"][x], tab["local"][x]
-                    a = self.arms[k]
-                    req.security_margin = self.margin
-                    hit = coal.collide(a.shapes.shapes[s].geometry, a.shape_tf(w(k, i), s), self.scene.octree, ident, req, res)
-                    msg = f"{names[x][0]} {names[x][1]} touches the scene map"
-                else:
-                    g1, g2 = P[x]
-                    k1, s1, k2, s2 = tab["arm_of"][g1], tab["local"][g1], tab["arm_of"][g2], tab["local"][g2]
-                    a1, a2 = self.arms[k1], self.arms[k2]
-                    req.security_margin = float(tab["pair_margin"][x])
-                    hit = coal.collide(a1.shapes.shapes[s1].geometry, a1.shape_tf(w(k1, i), s1),
-                                       a2.shapes.shapes[s2].geometry, a2.shape_tf(w(k2, i), s2), req, res)
-                    msg = self._pair_text(tab, names, x)
-                if hit:
-                    ok[i] = False
-                    if explain:
-                        reasons.append(msg)
-        return ok, reasons
+        names, P = tab["names"], tab["pairs"]
+        req, res = coal.CollisionRequest(), coal.CollisionResult()
+        ident = coal.Transform3s()
+        for i, kind, x in undecided:
+            if not ok[i] and not explain:
+                continue
+            self.stats["narrow"] += 1
+            res.clear()
+            if kind == "scene":
+                k, s = tab["arm_of"][x], tab["local"][x]
+                a = self.arms[k]
+                req.security_margin = self.margin
+                hit = coal.collide(a.shapes.shapes[s].geometry, a.shape_tf(w(k, i), s), self.scene.octree, ident, req, res)
+                msg = f"{names[x][0]} {names[x][1]} touches the scene map"
+            else:
+                g1, g2 = P[x]
+                k1, s1, k2, s2 = tab["arm_of"][g1], tab["local"][g1], tab["arm_of"][g2], tab["local"][g2]
+                a1, a2 = self.arms[k1], self.arms[k2]
+                req.security_margin = float(tab["pair_margin"][x])
+                hit = coal.collide(a1.shapes.shapes[s1].geometry, a1.shape_tf(w(k1, i), s1),
+                                   a2.shapes.shapes[s2].geometry, a2.shape_tf(w(k2, i), s2), req, res)
+                msg = self._pair_text(tab, names, x)
+            if hit:
+                ok[i] = False
+                if explain:
+                    reasons.append(msg)
 
     @staticmethod
     def _pair_text(tab: dict, names: list, p: int) -> str:

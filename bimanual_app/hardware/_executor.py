@@ -189,97 +189,156 @@ def _preflight(arms: Mapping[str, Any], trajs: Mapping[str, JointTrajectory], cf
                                          "from the measured joints"))
 
 
+@dataclass
+class _LoopState:
+    """Mutable state of the control loop between cycles."""
+
+    t0: float
+    q_prev: dict[str, np.ndarray]            # last setpoint sent to each arm
+    recent: dict[str, collections.deque]     # arm -> recent (time, setpoint) for the tracking check
+    tau: float = 0.0                         # position in the plan (seconds of plan time)
+    t_last: float = 0.0
+    cycle: int = 0
+    phase: str = "move"
+    settle_since: float | None = None
+    settle_start: float | None = None
+    next_tick: float = 0.0
+
+
+def _start_loop(arms: Mapping[str, Any], trajs: Mapping[str, JointTrajectory], names: list[str],
+                cfg: ExecutionConfig) -> _LoopState:
+    """Enable every arm and set up the loop state at the plan's first sample."""
+    for n in names:
+        arms[n].ensure_enabled(cfg.speed_pct_start, cfg.enable_timeout_s)
+    t0 = time.monotonic()
+    # the speed check of the first command starts from the plan's first sample: the step from the
+    # measured joints to it is bounded by start_tol_rad (pre-flight) and taken at the start speed %
+    q_prev = {n: trajs[n].q[0].copy() for n in names}
+    recent = {n: collections.deque([(t0, arms[n].read().q.copy()), (t0, q_prev[n].copy())]) for n in names}
+    return _LoopState(t0, q_prev, recent, t_last=t0, next_tick=t0)
+
+
+def _watch_arms(arms: Mapping[str, Any], names: list[str], st: _LoopState, cfg: ExecutionConfig,
+                report: ExecutionReport, now: float) -> dict[str, np.ndarray]:
+    """Read and watch every arm before commanding any: feedback age, faults, tracking. Returns measured joints."""
+    meas = {}
+    for n in names:
+        fb = arms[n].read()
+        if fb.age_s > cfg.feedback_timeout_s:
+            raise FeedbackTimeout(f"joint feedback stopped: the newest frame is {fb.age_s:.3f} s old "
+                                  f"(limit {cfg.feedback_timeout_s:.3f} s) at plan time {st.tau:.2f} s", n)
+        if fb.status not in (None, 0x00):
+            raise ArmFault(f"the arm reports '{fb.status_text}' (status 0x{fb.status:02X}) at plan time "
+                           f"{st.tau:.2f} s", n)
+        dq = st.recent[n]
+        while len(dq) > 1 and now - dq[0][0] > cfg.tracking_window_s:
+            dq.popleft()
+        err = min(float(np.max(np.abs(fb.q - q))) for _, q in dq)
+        report.max_tracking_rad[n] = max(report.max_tracking_rad[n], err)
+        if err > cfg.tracking_tol_rad:
+            raise TrackingError(f"the arm is {err:.3f} rad from its recent setpoints (limit "
+                                f"{cfg.tracking_tol_rad:.3f} rad) at plan time {st.tau:.2f} s: blocked, "
+                                "collided, or too slow for the plan", n)
+        meas[n] = fb.q
+    return meas
+
+
+def _next_setpoints(arms: Mapping[str, Any], trajs: Mapping[str, JointTrajectory], names: list[str],
+                    st: _LoopState, dt: float) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Sample every arm's next setpoint at the plan time and check it against the limits before any is sent."""
+    cmd, grip = {}, {}
+    for n in names:
+        q, g = trajs[n].sample(st.tau)
+        arms[n].limits.check_command(q, st.q_prev[n], max(dt, 1e-3))
+        cmd[n], grip[n] = q, g
+    return cmd, grip
+
+
+def _send_setpoints(arms: Mapping[str, Any], names: list[str], st: _LoopState, report: ExecutionReport,
+                    cmd: dict[str, np.ndarray], grip: dict[str, Any], meas: dict[str, np.ndarray],
+                    pct: int, now: float, wall: float) -> None:
+    """Send the checked setpoints and record them for the tracking check and the trace."""
+    for n in names:
+        arms[n]._send(cmd[n], pct, grip[n])
+        st.q_prev[n] = cmd[n]
+        st.recent[n].append((now, cmd[n].copy()))
+        report.trace[n].append((wall, st.tau, cmd[n].copy(), meas[n].copy()))
+
+
+def _settled(trajs: Mapping[str, JointTrajectory], names: list[str], st: _LoopState, cfg: ExecutionConfig,
+             report: ExecutionReport, meas: dict[str, np.ndarray], now: float) -> bool:
+    """Settle phase: True once every arm has held the last setpoint long enough; raises on a settle timeout."""
+    errs = {n: float(np.max(np.abs(meas[n] - trajs[n].q[-1]))) for n in names}
+    if max(errs.values()) <= cfg.settle_tol_rad:
+        st.settle_since = st.settle_since or now
+        if now - st.settle_since >= cfg.settle_time_s:
+            report.final_error_rad = errs
+            report.final_q = {n: meas[n].copy() for n in names}
+            return True
+    else:
+        st.settle_since = None
+    if now - st.settle_start > cfg.settle_timeout_s:
+        worst = max(errs, key=errs.get)
+        raise TrackingError(f"did not settle at the end of the plan: {errs[worst]:.3f} rad away after "
+                            f"{cfg.settle_timeout_s:.1f} s (limit {cfg.settle_tol_rad:.3f} rad)", worst)
+    return False
+
+
+def _wait_for_tick(st: _LoopState, cfg: ExecutionConfig) -> None:
+    """Sleep until the next cycle; after an overrun the schedule restarts from now."""
+    st.next_tick += cfg.period_s
+    delay = st.next_tick - time.monotonic()
+    if delay > 0:
+        time.sleep(delay)
+    else:
+        st.next_tick = time.monotonic()
+
+
+def _loop(arms: Mapping[str, Any], trajs: Mapping[str, JointTrajectory], cfg: ExecutionConfig,
+          progress: Callable[[CycleInfo], None] | None, report: ExecutionReport) -> ExecutionReport:
+    """The control loop proper: one cycle per ``period_s`` until the plan has played and every arm settled."""
+    names, duration = report.arms, report.plan_duration_s
+    st = _start_loop(arms, trajs, names, cfg)
+    while True:
+        now = time.monotonic()
+        dt = now - st.t_last
+        st.t_last = now
+        wall = now - st.t0
+        if now - st.next_tick > cfg.period_s:
+            report.late_cycles += 1
+        meas = _watch_arms(arms, names, st, cfg, report, now)
+        rate = cfg.rate(wall)
+        pct = cfg.speed_pct(wall)
+        if st.phase == "move":
+            st.tau = min(duration, st.tau + rate * dt)
+        cmd, grip = _next_setpoints(arms, trajs, names, st, dt)
+        _send_setpoints(arms, names, st, report, cmd, grip, meas, pct, now, wall)
+        st.cycle += 1
+        report.cycles = st.cycle
+        report.wall_s = time.monotonic() - st.t0
+        if progress is not None:
+            progress(CycleInfo(st.cycle, wall, st.tau, duration, rate, pct, cmd, meas, st.phase))
+        # ---- end: hold the last setpoint until every arm has settled
+        if st.phase == "move" and st.tau >= duration:
+            st.phase, st.settle_start = "settle", now
+        if st.phase == "settle" and _settled(trajs, names, st, cfg, report, meas, now):
+            break
+        _wait_for_tick(st, cfg)
+    report.cycles = st.cycle
+    report.wall_s = time.monotonic() - st.t0
+    return report
+
+
 def _run(arms: Mapping[str, Any], trajs: Mapping[str, JointTrajectory], cfg: ExecutionConfig,
          progress: Callable[[CycleInfo], None] | None) -> ExecutionReport:
+    """Pre-flight, then the control loop; any failure inside the loop stops every arm before it propagates."""
     _preflight(arms, trajs, cfg)
     names = list(arms)
     duration = max(tr.duration for tr in trajs.values())
     report = ExecutionReport(names, duration, 0.0, 0, {n: 0.0 for n in names}, {}, {},
                              trace={n: [] for n in names})
     try:
-        for n in names:
-            arms[n].ensure_enabled(cfg.speed_pct_start, cfg.enable_timeout_s)
-        t0 = time.monotonic()
-        # the speed check of the first command starts from the plan's first sample: the step from the
-        # measured joints to it is bounded by start_tol_rad (pre-flight) and taken at the start speed %
-        q_prev = {n: trajs[n].q[0].copy() for n in names}
-        recent = {n: collections.deque([(t0, arms[n].read().q.copy()), (t0, q_prev[n].copy())]) for n in names}
-        tau, t_last, cycle = 0.0, t0, 0
-        phase, settle_since, settle_start = "move", None, None
-        next_tick = t0
-        while True:
-            now = time.monotonic()
-            dt = now - t_last
-            t_last = now
-            wall = now - t0
-            if now - next_tick > cfg.period_s:
-                report.late_cycles += 1
-            # ---- read and watch every arm before commanding any
-            meas = {}
-            for n in names:
-                fb = arms[n].read()
-                if fb.age_s > cfg.feedback_timeout_s:
-                    raise FeedbackTimeout(f"joint feedback stopped: the newest frame is {fb.age_s:.3f} s old "
-                                          f"(limit {cfg.feedback_timeout_s:.3f} s) at plan time {tau:.2f} s", n)
-                if fb.status not in (None, 0x00):
-                    raise ArmFault(f"the arm reports '{fb.status_text}' (status 0x{fb.status:02X}) at plan time "
-                                   f"{tau:.2f} s", n)
-                dq = recent[n]
-                while len(dq) > 1 and now - dq[0][0] > cfg.tracking_window_s:
-                    dq.popleft()
-                err = min(float(np.max(np.abs(fb.q - q))) for _, q in dq)
-                report.max_tracking_rad[n] = max(report.max_tracking_rad[n], err)
-                if err > cfg.tracking_tol_rad:
-                    raise TrackingError(f"the arm is {err:.3f} rad from its recent setpoints (limit "
-                                        f"{cfg.tracking_tol_rad:.3f} rad) at plan time {tau:.2f} s: blocked, "
-                                        "collided, or too slow for the plan", n)
-                meas[n] = fb.q
-            # ---- next setpoints, all checked before any is sent
-            rate = cfg.rate(wall)
-            pct = cfg.speed_pct(wall)
-            if phase == "move":
-                tau = min(duration, tau + rate * dt)
-            cmd, grip = {}, {}
-            for n in names:
-                q, g = trajs[n].sample(tau)
-                arms[n].limits.check_command(q, q_prev[n], max(dt, 1e-3))
-                cmd[n], grip[n] = q, g
-            for n in names:
-                arms[n]._send(cmd[n], pct, grip[n])
-                q_prev[n] = cmd[n]
-                recent[n].append((now, cmd[n].copy()))
-                report.trace[n].append((wall, tau, cmd[n].copy(), meas[n].copy()))
-            cycle += 1
-            report.cycles = cycle
-            report.wall_s = time.monotonic() - t0
-            if progress is not None:
-                progress(CycleInfo(cycle, wall, tau, duration, rate, pct, cmd, meas, phase))
-            # ---- end: hold the last setpoint until every arm has settled
-            if phase == "move" and tau >= duration:
-                phase, settle_start = "settle", now
-            if phase == "settle":
-                errs = {n: float(np.max(np.abs(meas[n] - trajs[n].q[-1]))) for n in names}
-                if max(errs.values()) <= cfg.settle_tol_rad:
-                    settle_since = settle_since or now
-                    if now - settle_since >= cfg.settle_time_s:
-                        report.final_error_rad = errs
-                        report.final_q = {n: meas[n].copy() for n in names}
-                        break
-                else:
-                    settle_since = None
-                if now - settle_start > cfg.settle_timeout_s:
-                    worst = max(errs, key=errs.get)
-                    raise TrackingError(f"did not settle at the end of the plan: {errs[worst]:.3f} rad away after "
-                                        f"{cfg.settle_timeout_s:.1f} s (limit {cfg.settle_tol_rad:.3f} rad)", worst)
-            next_tick += cfg.period_s
-            delay = next_tick - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-            else:
-                next_tick = time.monotonic()
-        report.cycles = cycle
-        report.wall_s = time.monotonic() - t0
-        return report
+        return _loop(arms, trajs, cfg, progress, report)
     except HardwareError as e:
         e.report = report  # what happened up to the failure (trace, tracking)
         raise e.with_stopped(stop_all(arms)) from None

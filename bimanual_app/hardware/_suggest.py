@@ -118,6 +118,85 @@ def _short_tour(Q: np.ndarray, q_start: np.ndarray) -> list[int]:
     return tour
 
 
+def _candidate_views(target: np.ndarray, n_candidates: int, rng: np.random.Generator, region_radius: float,
+                     distance, elevation_deg, azimuth_deg, roll_deg) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Stratified candidate views (deterministic for a seed): eye points (C, 3), looked-at points (C, 3) and
+    (C, 3) rows of (azimuth, elevation, roll) in radians."""
+    back = -target[:2] / max(np.linalg.norm(target[:2]), 1e-9)     # from the target towards the base
+    u = np.array([back[0], back[1], 0.0])
+    v = np.cross([0.0, 0.0, 1.0], u)
+    k = np.arange(n_candidates)
+    az = np.radians(azimuth_deg[0] + (azimuth_deg[1] - azimuth_deg[0]) * ((k * 0.618034 + rng.uniform()) % 1.0))
+    el = np.radians(elevation_deg[0] + (elevation_deg[1] - elevation_deg[0]) * ((k * 0.754878 + rng.uniform()) % 1.0))
+    dist = distance[0] + (distance[1] - distance[0]) * ((k * 0.569840 + rng.uniform()) % 1.0)
+    roll = np.radians(roll_deg[0] + (roll_deg[1] - roll_deg[0]) * ((k * 0.865 + rng.uniform()) % 1.0))
+    jitter_r = region_radius * np.sqrt(rng.uniform(size=n_candidates))
+    jitter_a = rng.uniform(0, 2 * np.pi, size=n_candidates)
+    look = target + np.stack([jitter_r * np.cos(jitter_a), jitter_r * np.sin(jitter_a), np.zeros(n_candidates)], 1)
+    eyes = []
+    for i in range(n_candidates):
+        d = np.cos(el[i]) * (np.cos(az[i]) * u + np.sin(az[i]) * v) + np.sin(el[i]) * np.array([0.0, 0.0, 1.0])
+        eyes.append(look[i] + dist[i] * d)
+    return np.array(eyes).reshape(n_candidates, 3), look, np.stack([az, el, roll], axis=1)
+
+
+def _reachable_views(solver, limits: SafetyLimits, link: str, lower: np.ndarray, upper: np.ndarray,
+                     q_ready: np.ndarray, eyes: np.ndarray, looks: np.ndarray,
+                     meta: np.ndarray) -> tuple[list, list, list]:
+    """Joint poses, tool poses and (azimuth, elevation, roll) of the candidates with an IK solution inside the
+    joint limits (with margin) and the workspace checks."""
+    qs, Ts, kept = [], [], []
+    for eye, look, m in zip(eyes, looks, meta):
+        T_goal = make_T(_look_rotation(eye, look, m[2]), eye)
+        res = solver.solve(T_goal, q_current=q_ready, n_solutions=4, max_seeds=8)
+        q = None
+        for cand in (res.solutions if res.success else []):
+            if np.all(cand >= lower) and np.all(cand <= upper) and not limits.config_problems(cand[None], "q"):
+                q = cand
+                break
+        if q is None:
+            continue
+        qs.append(q)
+        Ts.append(limits.robot.fk_link(q, link))
+        kept.append((m[0], m[1], m[2]))
+    return qs, Ts, kept
+
+
+def _pick_views(R: np.ndarray, meta: np.ndarray, views: int, elevation_deg, min_angle_deg: float) -> list[int]:
+    """Greedy farthest-point selection on SO(3) of ``views`` of the rotations ``R`` (C, 3, 3), starting from the
+    most central view; raises ``ValueError`` when too few are ``min_angle_deg`` apart."""
+    # start: the most central view (small azimuth and roll, mid elevation)
+    mid_el = np.radians(np.mean(elevation_deg))
+    chosen = [int(np.argmin(np.abs(meta[:, 0]) + np.abs(meta[:, 2]) + np.abs(meta[:, 1] - mid_el)))]
+    min_rad = np.radians(min_angle_deg)
+    while len(chosen) < views:
+        best, best_score = None, -np.inf
+        for c in range(len(R)):
+            if c in chosen:
+                continue
+            ang = rotation_angle(np.swapaxes(R[chosen], -1, -2) @ R[c])
+            if ang.min() <= min_rad:
+                continue
+            _, spread = conditioning(R[chosen + [c]])
+            score = float(ang.min()) + spread  # far from every chosen view, and varied axes
+            if score > best_score:
+                best, best_score = c, score
+        if best is None:
+            raise ValueError(f"cannot pick {views} views at least {min_angle_deg:.0f} deg apart from {len(R)} reachable "
+                             "candidates: lower --views, or widen the ranges")
+        chosen.append(best)
+    return chosen
+
+
+def _check_moves(q_sel: np.ndarray, limits: SafetyLimits) -> None:
+    """Every move between consecutive views must stay within the limits."""
+    for a, b in zip(q_sel[:-1], q_sel[1:]):
+        move = joint_move(a, b, limits.velocity * 0.25, limits.velocity * 0.5)
+        probs = limits.trajectory_problems(move)
+        if probs:
+            raise ValueError(f"the move between two suggested views leaves the limits: {probs[0]}")
+
+
 def suggest_viewpoints(robot="piper", views: int = 8, target=(0.40, 0.0, 0.0), region_radius: float = 0.05,
                        distance=(0.15, 0.26), elevation_deg=(30.0, 75.0), azimuth_deg=(-45.0, 45.0),
                        roll_deg=(-90.0, 90.0), min_angle_deg: float = 25.0, limits: SafetyLimits | None = None,
@@ -139,71 +218,23 @@ def suggest_viewpoints(robot="piper", views: int = 8, target=(0.40, 0.0, 0.0), r
     rng = np.random.default_rng(seed)
     target = np.asarray(target, float)
     lower, upper = limits.lower + joint_margin, limits.upper - joint_margin
-    back = -target[:2] / max(np.linalg.norm(target[:2]), 1e-9)     # from the target towards the base
-    u = np.array([back[0], back[1], 0.0])
-    v = np.cross([0.0, 0.0, 1.0], u)
-    # a stratified set of (azimuth, elevation, distance, roll): deterministic for a seed
-    k = np.arange(n_candidates)
-    az = np.radians(azimuth_deg[0] + (azimuth_deg[1] - azimuth_deg[0]) * ((k * 0.618034 + rng.uniform()) % 1.0))
-    el = np.radians(elevation_deg[0] + (elevation_deg[1] - elevation_deg[0]) * ((k * 0.754878 + rng.uniform()) % 1.0))
-    dist = distance[0] + (distance[1] - distance[0]) * ((k * 0.569840 + rng.uniform()) % 1.0)
-    roll = np.radians(roll_deg[0] + (roll_deg[1] - roll_deg[0]) * ((k * 0.865 + rng.uniform()) % 1.0))
-    jitter_r = region_radius * np.sqrt(rng.uniform(size=n_candidates))
-    jitter_a = rng.uniform(0, 2 * np.pi, size=n_candidates)
-    look = target + np.stack([jitter_r * np.cos(jitter_a), jitter_r * np.sin(jitter_a), np.zeros(n_candidates)], 1)
+    eyes, looks, meta = _candidate_views(target, n_candidates, rng, region_radius, distance, elevation_deg,
+                                         azimuth_deg, roll_deg)
     base_yaw = np.arctan2(target[1], target[0])
     from bimanual_app.kinematics import IKSolver
 
     solver = IKSolver(model, link=link, seed=seed)
     q_ready = np.clip(np.array([base_yaw, 1.2, -0.8, 0.0, 0.4, 0.0]), lower, upper)
-    qs, Ts, meta = [], [], []
-    for i in range(n_candidates):
-        d = np.cos(el[i]) * (np.cos(az[i]) * u + np.sin(az[i]) * v) + np.sin(el[i]) * np.array([0.0, 0.0, 1.0])
-        eye = look[i] + dist[i] * d
-        T_goal = make_T(_look_rotation(eye, look[i], roll[i]), eye)
-        res = solver.solve(T_goal, q_current=q_ready, n_solutions=4, max_seeds=8)
-        q = None
-        for cand in (res.solutions if res.success else []):
-            if np.all(cand >= lower) and np.all(cand <= upper) and not limits.config_problems(cand[None], "q"):
-                q = cand
-                break
-        if q is None:
-            continue
-        qs.append(q)
-        Ts.append(model.fk_link(q, link))
-        meta.append((az[i], el[i], roll[i]))
+    qs, Ts, meta = _reachable_views(solver, limits, link, lower, upper, q_ready, eyes, looks, meta)
     if len(qs) < views:
         raise ValueError(f"only {len(qs)} reachable viewpoints of {n_candidates} candidates around target "
                          f"{target.tolist()} (need {views}): move the target closer to the arm or widen the ranges")
     qs, Ts, meta = np.array(qs), np.array(Ts), np.array(meta)
     R = Ts[:, :3, :3]
-    # start: the most central view (small azimuth and roll, mid elevation)
-    mid_el = np.radians(np.mean(elevation_deg))
-    chosen = [int(np.argmin(np.abs(meta[:, 0]) + np.abs(meta[:, 2]) + np.abs(meta[:, 1] - mid_el)))]
-    min_rad = np.radians(min_angle_deg)
-    while len(chosen) < views:
-        best, best_score = None, -np.inf
-        for c in range(len(qs)):
-            if c in chosen:
-                continue
-            ang = rotation_angle(np.swapaxes(R[chosen], -1, -2) @ R[c])
-            if ang.min() <= min_rad:
-                continue
-            _, spread = conditioning(R[chosen + [c]])
-            score = float(ang.min()) + spread  # far from every chosen view, and varied axes
-            if score > best_score:
-                best, best_score = c, score
-        if best is None:
-            raise ValueError(f"cannot pick {views} views at least {min_angle_deg:.0f} deg apart from {len(qs)} reachable "
-                             "candidates: lower --views, or widen the ranges")
-        chosen.append(best)
+    chosen = _pick_views(R, meta, views, elevation_deg, min_angle_deg)
     order = [chosen[i] for i in _short_tour(qs[chosen], q_ready)]
     q_sel = qs[order]
     # every move between consecutive views (and the first from the arm's usual ready pose) must be valid
-    for a, b in zip(q_sel[:-1], q_sel[1:]):
-        move = joint_move(a, b, limits.velocity * 0.25, limits.velocity * 0.5)
-        probs = limits.trajectory_problems(move)
-        if probs:
-            raise ValueError(f"the move between two suggested views leaves the limits: {probs[0]}")
+    _check_moves(q_sel, limits)
     m, spread = conditioning(R[order])
     return Suggestion(q_sel, Ts[order], target, m, spread, len(qs))

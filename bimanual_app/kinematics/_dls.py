@@ -129,6 +129,57 @@ def log6(T: np.ndarray) -> np.ndarray:
     return np.concatenate([v, w], axis=1)
 
 
+def _position_error(Tf: np.ndarray, Jfull: np.ndarray, targets: np.ndarray, tp2: float, tr2: float) -> tuple:
+    """Position-only error of frames ``Tf`` (L, 4, 4) against ``targets`` (L, 4, 4), in the frame's axes:
+    (e (L, 3), |e_pos|^2, |e_rot|^2 (zeros), done (L,), Jacobian rows (L, 3, J), |e|^2)."""
+    d = targets[:, :3, 3] - Tf[:, :3, 3]
+    e = (np.swapaxes(Tf[:, :3, :3], 1, 2) @ d[..., None])[..., 0]  # in the frame's axes (Jacobian rows 0..2)
+    e_p2 = (e * e).sum(axis=1)
+    e_r2 = np.zeros(len(Tf))
+    return e, e_p2, e_r2, e_p2 < tp2, Jfull[:, :3], e_p2
+
+
+def _pose_error(Tf: np.ndarray, Jfull: np.ndarray, targets: np.ndarray, tp2: float, tr2: float) -> tuple:
+    """Full-pose error (SE(3) log of Tf^-1 Tt) of frames ``Tf`` (L, 4, 4) against ``targets`` (L, 4, 4):
+    (e (L, 6), |e_pos|^2, |e_rot|^2, done (L,), Jacobian (L, 6, J), |e|^2)."""
+    dM = np.zeros_like(targets)  # the target in the frame's own axes: Tf^-1 Tt
+    Rt = np.swapaxes(Tf[:, :3, :3], 1, 2)
+    dM[:, :3, :3] = Rt @ targets[:, :3, :3]
+    dM[:, :3, 3] = (Rt @ (targets[:, :3, 3] - Tf[:, :3, 3])[..., None])[..., 0]
+    dM[:, 3, 3] = 1.0
+    e = log6(dM)
+    t = dM[:, :3, 3]
+    e_p2 = (t * t).sum(axis=1)
+    e_r2 = (e[:, 3:] * e[:, 3:]).sum(axis=1)
+    return e, e_p2, e_r2, (e_p2 < tp2) & (e_r2 < tr2), Jfull, (e * e).sum(axis=1)
+
+
+def _limited_step(q: np.ndarray, e: np.ndarray, Jr: np.ndarray, ee: np.ndarray, lower: np.ndarray,
+                  upper: np.ndarray, damping: float, far_damping: float, max_step: float,
+                  eye: np.ndarray) -> np.ndarray:
+    """The next configurations (L, J): a damped step, capped far from the solution, kept within the limits."""
+    lam = damping + far_damping * ee
+    dq = _step(Jr, e, lam, eye)
+    far = ee > 1e-2  # far from the solution: cap the step (near it the full step is small anyway)
+    n = np.abs(dq).max(axis=1)
+    scale = np.where(far & (n > max_step), max_step / np.where(n > 0, n, 1.0), 1.0)
+    dq *= scale[:, None]
+    qn = q + dq
+    qc = np.minimum(np.maximum(qn, lower), upper)
+    clipped = (qc != qn).any(axis=1)
+    blocked = ((q <= lower) & (dq < 0)) | ((q >= upper) & (dq > 0))
+    redo = clipped & blocked.any(axis=1)
+    if redo.any():
+        # joints already on a limit and pushed outwards are frozen and the step re-solved with the others;
+        # the rest are clipped (overshooting joints land on the limit)
+        Jb = Jr[redo] * ~blocked[redo][:, None, :]
+        dq2 = _step(Jb, e[redo], lam[redo], eye)
+        n2 = np.abs(dq2).max(axis=1)
+        dq2 *= np.where(n2 > max_step, max_step / np.where(n2 > 0, n2, 1.0), 1.0)[:, None]
+        qc[redo] = np.minimum(np.maximum(q[redo] + dq2, lower), upper)
+    return qc
+
+
 def descend(kin: ChainKinematics, Q: np.ndarray, targets: np.ndarray, lower: np.ndarray, upper: np.ndarray,
             position_only: bool, tol_pos: float, tol_rot: float, max_iter: int, damping: float, far_damping: float,
             max_step: float, tail=None, tail_lanes: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -154,6 +205,7 @@ def descend(kin: ChainKinematics, Q: np.ndarray, targets: np.ndarray, lower: np.
     eye = np.eye(m)
     targets = np.asarray(targets, dtype=np.float64)
     tp2, tr2 = tol_pos ** 2, tol_rot ** 2
+    error = _position_error if position_only else _pose_error
     ep2 = np.full(L, np.inf)
     er2 = np.full(L, np.inf) if not position_only else np.zeros(L)
     iters = np.zeros(L, dtype=int)
@@ -168,28 +220,7 @@ def descend(kin: ChainKinematics, Q: np.ndarray, targets: np.ndarray, lower: np.
         q = Q[live]
         Tf, Jfull = kin(q)
         iters[live] = it
-        if position_only:
-            d = targets[live, :3, 3] - Tf[:, :3, 3]
-            e = (np.swapaxes(Tf[:, :3, :3], 1, 2) @ d[..., None])[..., 0]  # in the frame's axes (Jacobian rows 0..2)
-            e_p2 = (e * e).sum(axis=1)
-            e_r2 = np.zeros(len(live))
-            done = e_p2 < tp2
-            Jr = Jfull[:, :3]
-            ee = e_p2
-        else:
-            Tt = targets[live]
-            dM = np.zeros_like(Tt)  # the target in the frame's own axes: Tf^-1 Tt
-            Rt = np.swapaxes(Tf[:, :3, :3], 1, 2)
-            dM[:, :3, :3] = Rt @ Tt[:, :3, :3]
-            dM[:, :3, 3] = (Rt @ (Tt[:, :3, 3] - Tf[:, :3, 3])[..., None])[..., 0]
-            dM[:, 3, 3] = 1.0
-            e = log6(dM)
-            t = dM[:, :3, 3]
-            e_p2 = (t * t).sum(axis=1)
-            e_r2 = (e[:, 3:] * e[:, 3:]).sum(axis=1)
-            done = (e_p2 < tp2) & (e_r2 < tr2)
-            Jr = Jfull
-            ee = (e * e).sum(axis=1)
+        e, e_p2, e_r2, done, Jr, ee = error(Tf, Jfull, targets[live], tp2, tr2)
         ep2[live], er2[live] = e_p2, e_r2
         score = e_p2 + 0.01 * e_r2
         hist[it, live] = score
@@ -198,26 +229,7 @@ def descend(kin: ChainKinematics, Q: np.ndarray, targets: np.ndarray, lower: np.
         if not go.any():
             break
         live, q, e, Jr, ee = live[go], q[go], e[go], Jr[go], ee[go]
-        lam = damping + far_damping * ee
-        dq = _step(Jr, e, lam, eye)
-        far = ee > 1e-2  # far from the solution: cap the step (near it the full step is small anyway)
-        n = np.abs(dq).max(axis=1)
-        scale = np.where(far & (n > max_step), max_step / np.where(n > 0, n, 1.0), 1.0)
-        dq *= scale[:, None]
-        qn = q + dq
-        qc = np.minimum(np.maximum(qn, lower), upper)
-        clipped = (qc != qn).any(axis=1)
-        blocked = ((q <= lower) & (dq < 0)) | ((q >= upper) & (dq > 0))
-        redo = clipped & blocked.any(axis=1)
-        if redo.any():
-            # joints already on a limit and pushed outwards are frozen and the step re-solved with the others;
-            # the rest are clipped (overshooting joints land on the limit)
-            Jb = Jr[redo] * ~blocked[redo][:, None, :]
-            dq2 = _step(Jb, e[redo], lam[redo], eye)
-            n2 = np.abs(dq2).max(axis=1)
-            dq2 *= np.where(n2 > max_step, max_step / np.where(n2 > 0, n2, 1.0), 1.0)[:, None]
-            qc[redo] = np.minimum(np.maximum(q[redo] + dq2, lower), upper)
-        Q[live] = qc
+        Q[live] = _limited_step(q, e, Jr, ee, lower, upper, damping, far_damping, max_step, eye)
     return Q, np.sqrt(ep2), np.sqrt(er2), iters
 
 

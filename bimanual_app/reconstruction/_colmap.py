@@ -283,6 +283,85 @@ def _to_sparse(rec, check: Check | None) -> SparseModel:
     return SparseModel(names, T, cams, np.array(Ks).reshape(-1, 3, 3), xyz, rgb, track, err, obs, dropped=dropped)
 
 
+def _feature_rounds(opts: ColmapOptions) -> list[tuple[str, dict, dict, dict, int]]:
+    """The feature ladder: (name, SIFT extraction, SIFT matching, two-view geometry, RANSAC seed) per round, in
+    the order tried. Rounds named ``<features>~seed<k>`` re-match the previous round's features."""
+    configs = _feature_configs(opts)
+    rounds = [(f, feat, match, geom, opts.seed) for f, feat, match, geom in configs]
+    if opts.retries:  # last resort: the densest features, re-matched with other RANSAC seeds
+        f, feat, match, geom = configs[-1]
+        rounds += [(f"{f}~seed{k}", feat, match, geom, opts.seed + k) for k in range(1, opts.reseeds + 1)]
+    return rounds
+
+
+def _ladder_done(best_score: tuple | None, fname: str, n_images: int, opts: ColmapOptions) -> bool:
+    """True when every view is registered in a well-populated model, or only reseeding rounds are left."""
+    all_in = best_score is not None and best_score[1] == n_images
+    return all_in and (best_score[2] >= opts.points_per_view * n_images or "~" in fname)
+
+
+def _features_and_matches(db: Path | None, workdir: Path, root: Path, arms: dict[str, ArmImages],
+                          intrinsics: dict[str, CameraIntrinsics | None], n_images: int, round_: tuple,
+                          opts: ColmapOptions, log: Log) -> Path:
+    """One feature round: a fresh database with its features (or, for a reseeding round, the previous one's
+    matches cleared), then exhaustive matching. Returns the database."""
+    import pycolmap
+
+    fname, feat, match, geom, seed = round_
+    t0 = time.perf_counter()
+    if "~" not in fname:
+        db = workdir / f"{fname}.db"
+        if db.exists():
+            db.unlink()
+        log(f"  [{fname}] extracting SIFT features of {n_images} images (CPU)")
+        _build_database(db, root, arms, intrinsics, feat, opts)
+    else:
+        # few inliers per pair make geometric verification a lottery: another RANSAC seed can
+        # verify the pair that brings a missing view in (measured: 2/3 vs 3/4 views on 4-view scenes)
+        with pycolmap.Database.open(db) as d:
+            d.clear_matches()
+            d.clear_two_view_geometries()
+    log(f"  [{fname}] exhaustive matching ({n_images * (n_images - 1) // 2} pairs, both arms together)")
+    _match(db, match, geom, opts, seed)
+    with pycolmap.Database.open(db) as d:
+        n_pairs = d.num_verified_image_pairs()
+    log(f"  [{fname}] {n_pairs} verified image pairs ({time.perf_counter() - t0:.1f} s)")
+    return db
+
+
+def _mapper_attempt(db: Path, root: Path, workdir: Path, name: str, cfg: tuple, fixed: bool, opts: ColmapOptions,
+                    arms: dict[str, ArmImages], arm_of: dict[str, str], check: Check | None, agree: Agree | None,
+                    log: Log) -> tuple[Attempt, tuple | None]:
+    """One mapper run: its :class:`Attempt` and (score, pycolmap.Reconstruction) of its best model, or None."""
+    t0 = time.perf_counter()
+    log(f"  [{name}] incremental mapping")
+    models = _map(db, root, workdir / name.replace("/", "-").replace("~", "-"), cfg, fixed, opts)
+    top = None
+    for rec in models.values():
+        sc = _score(rec, arm_of, opts.min_views, check)
+        if top is None or sc > top[0]:
+            top = (sc, rec)
+    counts = _per_arm(top[1], arm_of, _kept(top[1], check)[0]) if top else {a: 0 for a in sorted(arms)}
+    att = Attempt(name, counts, len(models), top[1].num_points3D() if top else 0,
+                  time.perf_counter() - t0)
+    if top is not None and top[0][0] and agree is not None:
+        att.agreement = _agreement_of(top[1], check, agree)
+    log(f"  [{name}] {len(models)} model(s); best registers "
+        + ", ".join(f"{a} {counts[a]}/{len(arms[a].names)}" for a in arms)
+        + (f"; motions vs robot {att.agreement['rot_deg']:.2f} deg, "
+           f"{100 * att.agreement['trans_rel']:.1f} % (score {att.agreement['score']:.3f})"
+           if att.agreement else "")
+        + f" ({time.perf_counter() - t0:.1f} s)")
+    return att, top
+
+
+def _pick_candidate(candidates: list[tuple[int, tuple, object]], attempts: list[Attempt]) -> int:
+    """Index into ``candidates`` of the model to keep (``_agreement.choose_attempt``)."""
+    scores = [attempts[a].agreement["score"] if attempts[a].agreement else float("inf") for a, _, _ in candidates]
+    return choose_attempt([sc[0] for _, sc, _ in candidates], [sc[1] for _, sc, _ in candidates],
+                          [sc[2] for _, sc, _ in candidates], scores)
+
+
 def run_colmap(root: Path, arms: dict[str, ArmImages], intrinsics: dict[str, CameraIntrinsics | None],
                opts: ColmapOptions | None = None, workdir: Path | None = None, log: Log = print,
                check: Check | None = None, agree: Agree | None = None) -> SparseModel:
@@ -321,67 +400,26 @@ def run_colmap(root: Path, arms: dict[str, ArmImages], intrinsics: dict[str, Cam
         workdir = Path(workdir)
         workdir.mkdir(parents=True, exist_ok=True)
         stack.enter_context(_colmap_log(opts.verbose))
-        configs = _feature_configs(opts)
-        rounds = [(f, feat, match, geom, opts.seed) for f, feat, match, geom in configs]
-        if opts.retries:  # last resort: the densest features, re-matched with other RANSAC seeds
-            f, feat, match, geom = configs[-1]
-            rounds += [(f"{f}~seed{k}", feat, match, geom, opts.seed + k) for k in range(1, opts.reseeds + 1)]
         db = None
-        for fname, feat, match, geom, seed in rounds:
-            all_in = best_score is not None and best_score[1] == n_images
-            if all_in and (best_score[2] >= opts.points_per_view * n_images or "~" in fname):
-                break  # every view registered in a well-populated model, or only reseeding left
-            t0 = time.perf_counter()
-            if "~" not in fname:
-                db = workdir / f"{fname}.db"
-                if db.exists():
-                    db.unlink()
-                log(f"  [{fname}] extracting SIFT features of {n_images} images (CPU)")
-                _build_database(db, root, arms, intrinsics, feat, opts)
-            else:
-                # few inliers per pair make geometric verification a lottery: another RANSAC seed can
-                # verify the pair that brings a missing view in (measured: 2/3 vs 3/4 views on 4-view scenes)
-                with pycolmap.Database.open(db) as d:
-                    d.clear_matches()
-                    d.clear_two_view_geometries()
-            log(f"  [{fname}] exhaustive matching ({n_images * (n_images - 1) // 2} pairs, both arms together)")
-            _match(db, match, geom, opts, seed)
-            with pycolmap.Database.open(db) as d:
-                n_pairs = d.num_verified_image_pairs()
-            log(f"  [{fname}] {n_pairs} verified image pairs ({time.perf_counter() - t0:.1f} s)")
+        for round_ in _feature_rounds(opts):
+            fname = round_[0]
+            if _ladder_done(best_score, fname, n_images, opts):
+                break
+            db = _features_and_matches(db, workdir, root, arms, intrinsics, n_images, round_, opts, log)
             for cfg in _mapper_configs(opts):
-                name = f"{fname}/{cfg[0]}"
-                t0 = time.perf_counter()
-                log(f"  [{name}] incremental mapping")
-                models = _map(db, root, workdir / name.replace("/", "-").replace("~", "-"), cfg, fixed, opts)
-                top = None
-                for rec in models.values():
-                    sc = _score(rec, arm_of, opts.min_views, check)
-                    if top is None or sc > top[0]:
-                        top = (sc, rec)
-                counts = _per_arm(top[1], arm_of, _kept(top[1], check)[0]) if top else {a: 0 for a in sorted(arms)}
-                att = Attempt(name, counts, len(models), top[1].num_points3D() if top else 0,
-                              time.perf_counter() - t0)
-                if top is not None and top[0][0] and agree is not None:
-                    att.agreement = _agreement_of(top[1], check, agree)
+                att, top = _mapper_attempt(db, root, workdir, f"{fname}/{cfg[0]}", cfg, fixed, opts, arms, arm_of,
+                                           check, agree, log)
                 attempts.append(att)
-                log(f"  [{name}] {len(models)} model(s); best registers "
-                    + ", ".join(f"{a} {counts[a]}/{len(arms[a].names)}" for a in arms)
-                    + (f"; motions vs robot {att.agreement['rot_deg']:.2f} deg, "
-                       f"{100 * att.agreement['trans_rel']:.1f} % (score {att.agreement['score']:.3f})"
-                       if att.agreement else "")
-                    + f" ({time.perf_counter() - t0:.1f} s)")
-                if top is not None:
-                    candidates.append((len(attempts) - 1, top[0], top[1]))
-                if top is not None and (best_score is None or top[0] > best_score):
+                if top is None:
+                    continue
+                candidates.append((len(attempts) - 1, top[0], top[1]))
+                if best_score is None or top[0] > best_score:
                     best_score = top[0]
-                if top is not None and top[0][1] == n_images:  # this database registers all: stop relaxing
+                if top[0][1] == n_images:  # this database registers all: stop relaxing
                     break
         if not candidates:
             raise RuntimeError("COLMAP could not build any model (no image pair with enough verified matches)")
-        scores = [attempts[a].agreement["score"] if attempts[a].agreement else float("inf") for a, _, _ in candidates]
-        pick = choose_attempt([sc[0] for _, sc, _ in candidates], [sc[1] for _, sc, _ in candidates],
-                              [sc[2] for _, sc, _ in candidates], scores)
+        pick = _pick_candidate(candidates, attempts)
         best_name = attempts[candidates[pick][0]].name
         model = _to_sparse(candidates[pick][2], check)
     model.attempts, model.chosen = attempts, best_name

@@ -37,11 +37,19 @@ class RobotModel:
     """
 
     def __init__(self, name: str, urdf_path: Path, ee_link: str | None = None, spec: RobotSpec | None = None):
-        import pinocchio as pin
-
         self.name = name
         self.urdf_path = Path(urdf_path)
         self.spec = spec
+        self._load_urdf()
+        self._set_ee_link(ee_link, spec)
+        self._set_arm_chain(spec)
+        self._set_limits(spec)
+        self._set_tcp(spec)
+
+    def _load_urdf(self) -> None:
+        """Pinocchio model, its data and the batched FK of the URDF; an InputError names a bad file."""
+        import pinocchio as pin
+
         try:
             self.model = pin.buildModelFromUrdf(str(self.urdf_path))
         except Exception as e:  # urdfdom / pinocchio report malformed files with various exception types
@@ -53,6 +61,10 @@ class RobotModel:
         except ValueError as e:
             raise InputError(Problem(str(self.urdf_path), "joints", str(e), "use a URDF with revolute/prismatic joints")) from e
 
+    def _set_ee_link(self, ee_link: str | None, spec: RobotSpec | None) -> None:
+        """The tool link: given, the registry's, or the flange found in the URDF; it must be a link."""
+        import pinocchio as pin
+
         self.link_names = [f.name for f in self.model.frames if f.type == pin.FrameType.BODY]
         ee = ee_link or (spec.ee_link if spec else None) or self._default_ee_link()
         if not self.model.existFrame(ee) or self.model.frames[self.model.getFrameId(ee)].type != pin.FrameType.BODY:
@@ -62,7 +74,9 @@ class RobotModel:
         self.ee_link = ee
         self._ee_id = self.model.getFrameId(ee)
 
-        # arm joints: the chain from the root to the ee link's joint; everything else counts as fingers
+    def _set_arm_chain(self, spec: RobotSpec | None) -> None:
+        """Arm joints: the chain from the root to the ee link's joint; everything else counts as fingers."""
+        ee = self.ee_link
         chain = []
         j = int(self.model.frames[self._ee_id].parentJoint)
         while j > 0:
@@ -87,6 +101,8 @@ class RobotModel:
                         f" {list(spec.finger_joints)}", "use the packaged URDF or pass the file as a path")
             )
 
+    def _set_limits(self, spec: RobotSpec | None) -> None:
+        """Position limits of arm and finger joints (finite, lower < upper), velocity and acceleration limits."""
         lo = np.asarray(self.model.lowerPositionLimit, dtype=np.float64)
         hi = np.asarray(self.model.upperPositionLimit, dtype=np.float64)
         self.lower = lo[: self.nq_arm].copy()
@@ -111,6 +127,8 @@ class RobotModel:
                 f"URDF <limit velocity>; acceleration assumed {DEFAULT_ACCEL_PER_VELOCITY:g} x velocity per second"
             )
 
+    def _set_tcp(self, spec: RobotSpec | None) -> None:
+        """The gripper link and ``T_e_g`` (flange to gripper, at the neutral configuration), when the registry names one."""
         self.tcp_link = (spec.tcp_link if spec else None)
         if self.tcp_link is not None:
             q0 = self.neutral()

@@ -113,8 +113,8 @@ def _safe_key(key: str) -> bool:
     return bool(key) and not p.is_absolute() and ".." not in p.parts and "\\" not in key
 
 
-def _parse_csv(c: _Collector, root: Path, arm: str) -> dict | None:
-    path = root / arm / "ee_poses.csv"
+def _read_csv_rows(c: _Collector, path: Path, arm: str) -> list[list[str]] | None:
+    """The non-blank rows of an arm's ee_poses.csv, or None (with an error) when missing, unreadable or empty."""
     if not path.exists():
         c.error(path, "", "file is missing", f"write one row per image of the {arm} arm: image,x,y,z,qx,qy,qz,qw or image,j1..j6")
         return None
@@ -127,7 +127,11 @@ def _parse_csv(c: _Collector, root: Path, arm: str) -> dict | None:
     if not rows:
         c.error(path, "", "file is empty", "add a header row and one row per image")
         return None
-    header = [h.strip() for h in rows[0]]
+    return rows
+
+
+def _csv_columns(c: _Collector, path: Path, header: list[str]) -> tuple[str, list[str]] | None:
+    """From the header: ("pose", POSE_COLUMNS) or ("joints", [j1..jN]), or None (with an error)."""
     if "image" not in header:
         c.error(path, "header", f"no 'image' column (header is {','.join(header)})",
                 "the first row must name the columns: image,x,y,z,qx,qy,qz,qw or image,j1,...,j6")
@@ -140,22 +144,43 @@ def _parse_csv(c: _Collector, root: Path, arm: str) -> dict | None:
             c.error(path, "header", f"missing column(s) {', '.join(missing)}",
                     "a pose CSV needs all of image,x,y,z,qx,qy,qz,qw (quaternion by name)")
             return None
-        mode, cols = "pose", POSE_COLUMNS
-    elif joint_cols:
+        return "pose", POSE_COLUMNS
+    if joint_cols:
         expected = [f"j{i}" for i in range(1, len(joint_cols) + 1)]
         if joint_cols != expected:
             c.error(path, "header", f"joint columns {joint_cols} are not j1..jN in sequence", f"name them {','.join(expected)}")
             return None
-        mode, cols = "joints", joint_cols
-    else:
-        c.error(path, "header", f"neither pose columns nor joint columns (header is {','.join(header)})",
-                "use image,x,y,z,qx,qy,qz,qw (T_b_e in metres) or image,j1,...,j6 (radians)")
-        return None
+        return "joints", joint_cols
+    c.error(path, "header", f"neither pose columns nor joint columns (header is {','.join(header)})",
+            "use image,x,y,z,qx,qy,qz,qw (T_b_e in metres) or image,j1,...,j6 (radians)")
+    return None
+
+
+def _row_values(c: _Collector, path: Path, field: str, row: list[str], idx: dict[str, int],
+                cols: list[str]) -> list[float] | None:
+    """The numeric cells of one data row in column order, or None (with an error) at the first bad cell."""
+    vals = []
+    for h in cols:
+        cell = row[idx[h]].strip()
+        try:
+            v = float(cell)
+        except ValueError:
+            c.error(path, f"{field}, {h}", f"{cell!r} is not a number", "write a decimal number")
+            return None
+        if not math.isfinite(v):
+            c.error(path, f"{field}, {h}", f"non-finite value {cell!r}", "replace it with the measured value or drop the row")
+            return None
+        vals.append(v)
+    return vals
+
+
+def _csv_data_rows(c: _Collector, path: Path, arm: str, rows: list[list[str]], header: list[str],
+                   cols: list[str]) -> tuple[list[str], list[list[float]], dict[str, int]]:
+    """Image keys, values and key -> row number of the valid data rows; every bad row is reported."""
     idx = {h: header.index(h) for h in ["image"] + cols}
     images: list[str] = []
     values: list[list[float]] = []
     seen: dict[str, int] = {}
-    n_bad = len(c.errors)
     for r, row in enumerate(rows[1:], start=2):
         field = f"row {r}"
         if len(row) != len(header):
@@ -171,48 +196,65 @@ def _parse_csv(c: _Collector, root: Path, arm: str) -> dict | None:
                     "give every row its own image")
             continue
         seen[key] = r
-        vals = []
-        for h in cols:
-            cell = row[idx[h]].strip()
-            try:
-                v = float(cell)
-            except ValueError:
-                c.error(path, f"{field}, {h}", f"{cell!r} is not a number", "write a decimal number")
-                break
-            if not math.isfinite(v):
-                c.error(path, f"{field}, {h}", f"non-finite value {cell!r}", "replace it with the measured value or drop the row")
-                break
-            vals.append(v)
-        else:
+        vals = _row_values(c, path, field, row, idx, cols)
+        if vals is not None:
             images.append(key)
             values.append(vals)
-    if len(rows) == 1:
-        c.error(path, "", "no data rows (header only)", "add one row per captured image")
+    return images, values, seen
+
+
+def _pose_rows(c: _Collector, path: Path, arr: np.ndarray, images: list[str], seen: dict[str, int],
+               n_bad: int) -> dict | None:
+    """Pose rows (N, 7) -> T_b_e (N, 4, 4), after checking for millimetres and non-unit quaternions."""
+    pos, q = arr[:, :3], arr[:, 3:]
+    for i, (p, qq) in enumerate(zip(pos, q)):
+        field = f"row {seen[images[i]]}"
+        if np.linalg.norm(p) > MAX_REACH_M:
+            c.error(path, f"{field}, x/y/z", f"position {p.tolist()} is {np.linalg.norm(p):.1f} from the base:"
+                    " this looks like millimetres", "positions are metres: divide x, y, z by 1000")
+        nq = np.linalg.norm(qq)
+        if abs(nq - 1.0) > QUAT_TOL:
+            c.error(path, f"{field}, qx..qw", f"quaternion is not unit (norm {nq:.4f})",
+                    "normalise it (divide by its norm) and check the column order is qx,qy,qz,qw")
     if len(c.errors) > n_bad:
         return None
-    arr = np.array(values, dtype=np.float64).reshape(len(values), len(cols))
-    if mode == "pose":
-        pos, q = arr[:, :3], arr[:, 3:]
-        for i, (p, qq) in enumerate(zip(pos, q)):
-            field = f"row {seen[images[i]]}"
-            if np.linalg.norm(p) > MAX_REACH_M:
-                c.error(path, f"{field}, x/y/z", f"position {p.tolist()} is {np.linalg.norm(p):.1f} from the base:"
-                        " this looks like millimetres", "positions are metres: divide x, y, z by 1000")
-            nq = np.linalg.norm(qq)
-            if abs(nq - 1.0) > QUAT_TOL:
-                c.error(path, f"{field}, qx..qw", f"quaternion is not unit (norm {nq:.4f})",
-                        "normalise it (divide by its norm) and check the column order is qx,qy,qz,qw")
-        if len(c.errors) > n_bad:
-            return None
-        T = T_from_xyz_quat(pos, q / np.linalg.norm(q, axis=1, keepdims=True))
-        return {"mode": mode, "images": images, "T_b_e": T, "joints": None, "path": path}
+    T = T_from_xyz_quat(pos, q / np.linalg.norm(q, axis=1, keepdims=True))
+    return {"mode": "pose", "images": images, "T_b_e": T, "joints": None, "path": path}
+
+
+def _joint_rows(c: _Collector, path: Path, arr: np.ndarray, images: list[str], seen: dict[str, int],
+                cols: list[str]) -> dict | None:
+    """Joint rows (N, J) in radians, after checking for degrees."""
     big = np.abs(arr) > 2 * math.pi + 0.1
     if big.any():
         r, j = np.argwhere(big)[0]
         c.error(path, f"row {seen[images[r]]}, {cols[j]}", f"joint angle {arr[r, j]} is beyond 2*pi: this looks like degrees",
                 "joint angles are radians: multiply degrees by pi/180")
         return None
-    return {"mode": mode, "images": images, "T_b_e": None, "joints": arr, "path": path}
+    return {"mode": "joints", "images": images, "T_b_e": None, "joints": arr, "path": path}
+
+
+def _parse_csv(c: _Collector, root: Path, arm: str) -> dict | None:
+    """Parse ``<arm>/ee_poses.csv`` (pose or joint columns); None when it has errors (all reported to ``c``)."""
+    path = root / arm / "ee_poses.csv"
+    rows = _read_csv_rows(c, path, arm)
+    if rows is None:
+        return None
+    header = [h.strip() for h in rows[0]]
+    columns = _csv_columns(c, path, header)
+    if columns is None:
+        return None
+    mode, cols = columns
+    n_bad = len(c.errors)
+    images, values, seen = _csv_data_rows(c, path, arm, rows, header, cols)
+    if len(rows) == 1:
+        c.error(path, "", "no data rows (header only)", "add one row per captured image")
+    if len(c.errors) > n_bad:
+        return None
+    arr = np.array(values, dtype=np.float64).reshape(len(values), len(cols))
+    if mode == "pose":
+        return _pose_rows(c, path, arr, images, seen, n_bad)
+    return _joint_rows(c, path, arr, images, seen, cols)
 
 
 def _parse_reconstruction(c: _Collector, root: Path) -> Reconstruction | None:

@@ -11,6 +11,7 @@ import shutil
 import tempfile
 import time
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -193,6 +194,172 @@ def make_synthetic_scene(out_dir: str | os.PathLike, seed: int = 0, views: int =
     return out
 
 
+@dataclass
+class _Poses:
+    """The emulator's view poses of both arms (independent of rendering: same numbers with render=False)."""
+
+    T_b1_c_true: list[np.ndarray]   # per arm (N, 4, 4) true camera poses in b1
+    is_out: list[np.ndarray]        # per arm (N,) bool: views with a gross pose error
+    rot_err: list[np.ndarray]       # per arm (N,) rad
+    trans_err: list[np.ndarray]     # per arm (N,) m
+    T_w_b1: np.ndarray              # (4, 4) the reconstruction frame
+    scale: float                    # reconstruction units per metre
+    T_w_c: list[np.ndarray]         # per arm (N, 4, 4) reported camera poses in w
+
+
+@dataclass
+class _Renders:
+    """What rendering produced: point maps of every view (primary first) and per-arm thumbnails."""
+
+    pts: list = field(default_factory=list)
+    conf: list = field(default_factory=list)
+    colors: list = field(default_factory=list)
+    thumbs: list = field(default_factory=list)
+    depth_scale_err: list = field(default_factory=lambda: [[], []])
+
+
+def _place_and_plan(world, rngs: dict, n_objects: int, n_views: int, touching: float, K: np.ndarray,
+                    image_size, log: _Log) -> tuple[list, list, list, list, list]:
+    """Objects on the table and both arms' viewpoints: (specs, T_b1_o, touching pairs, plans, view stats)."""
+    specs = [sample_spec(k, rngs["objects"]) for k in choose_kinds(n_objects, rngs["objects"])]
+    T_b1_o = place_objects(world, specs, rngs["objects"], touching=touching)
+    pairs = touching_pairs(world, world.object_ids)
+    log(f"placed {', '.join(s.kind for s in specs)}; touching pairs {pairs}")
+    centre = np.mean([T[:3, 3] for T in T_b1_o], axis=0)
+    centre[2] = 0.0
+    plans, vstats = [], []
+    for a in range(2):
+        v, st = plan_views(world, a, n_views, rngs[("views1", "views2")[a]], centre, K=K, image_size=image_size)
+        plans.append(v)
+        vstats.append(st)
+        log(f"{ARMS[a]}: {st['visible']} feasible viewpoints of {st['candidates']} tried, chose {n_views}"
+            f" (smallest rotation between two: {st['min_pair_rotation_deg']:.1f} deg)")
+    return specs, T_b1_o, pairs, plans, vstats
+
+
+def _emulate_poses(plans: list, T_b1_b: list[np.ndarray], T_e_c: list[np.ndarray], level, n_views: int,
+                   outlier_frac: float, rngs: dict) -> _Poses:
+    """True camera poses, the perturbed poses the emulator reports, and the random reconstruction frame."""
+    T_b1_c_true = [np.array([T_b1_b[a] @ v.T_b_e @ T_e_c[a] for v in plans[a]]) for a in range(2)]
+    is_out = [_choose_outliers(rngs["outliers"], n_views, outlier_frac) for _ in range(2)]
+    reported, rot_err, trans_err = [], [], []
+    for a in range(2):
+        Tr, re, te = perturb_poses(T_b1_c_true[a], level, is_out[a], rngs["poses"])
+        reported.append(Tr)
+        rot_err.append(re)
+        trans_err.append(te)
+    T_w_b1, scale = random_frame(rngs["frame"])
+    T_w_c = [to_frame_w(reported[a], T_w_b1, scale) for a in range(2)]
+    return _Poses(T_b1_c_true, is_out, rot_err, trans_err, T_w_b1, scale, T_w_c)
+
+
+def _render_view(world, root: Path, a: int, i: int, key: str, poses: _Poses, K: np.ndarray, image_size, pm_size,
+                 depth_stride: int, level, map_model: MapNoise | None, rngs: dict, static: set,
+                 out: _Renders) -> None:
+    """Render view ``i`` of arm ``a``: write its image, mask and ground-truth depth, emulate its point map."""
+    W, H = image_size
+    rgb, depth, seg = world.render(poses.T_b1_c_true[a][i], K, W, H)
+    mask = np.zeros((H, W), np.uint8)
+    for k, body in enumerate(world.object_ids):
+        mask[seg == body] = k + 1
+    gt_depth = np.where(np.isin(seg, list(static)) & np.isfinite(depth), depth, 0.0)
+    gt_depth = gt_depth[::depth_stride, ::depth_stride]
+    gt_q = np.round(gt_depth / DEPTH_UNITS_M)
+    gt_q[gt_q > 65535] = 0
+    arm_dir = root / ARMS[a]
+    _save_png(arm_dir / key, rgb)
+    _save_png(arm_dir / "masks" / f"{i:03d}.png", mask)
+    _save_png(arm_dir / "depth" / f"{i:03d}.png", gt_q.astype(np.uint16))
+    err = None
+    if map_model is not None:
+        err, s_err = map_depth_error(map_model, pm_size[1], pm_size[0], rngs["depth"])
+        out.depth_scale_err[a].append(s_err)
+    p3, cf, co = point_map(depth, rgb, K, poses.T_w_c[a][i], poses.scale, pm_size, level.depth_rel,
+                           rngs["depth"], depth_error=err)
+    out.pts.append(p3)
+    out.conf.append(cf)
+    out.colors.append(co)
+    out.thumbs[a].append(rgb[::4, ::4])
+
+
+def _render_all(world, root: Path, plans: list, keys: list[str], poses: _Poses, K: np.ndarray, image_size, pm_size,
+                depth_stride: int, level, map_model: MapNoise | None, rngs: dict, log: _Log) -> _Renders:
+    """Render every view of both arms (the other arm parked)."""
+    out = _Renders()
+    static = set(world.static_ids) | set(world.object_ids)
+    with log.bar("rendering", 2 * len(keys)) as step:
+        for a in range(2):
+            world.set_arm(1 - a, world.q_park)
+            out.thumbs.append([])
+            for i, v in enumerate(plans[a]):
+                world.set_arm(a, v.q)
+                _render_view(world, root, a, i, keys[i], poses, K, image_size, pm_size, depth_stride, level,
+                             map_model, rngs, static, out)
+                step()
+            world.set_arm(a, world.q_park)
+    return out
+
+
+def _overview(world, T_b1_b2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Overview picture: both arms parked, seen from the side of the table; (image, K (3, 3), T_b1_camera)."""
+    for a in range(2):
+        world.set_arm(a, world.q_park)
+    across = np.array([-T_b1_b2[1, 3], T_b1_b2[0, 3], 0.0])
+    across /= np.linalg.norm(across)
+    mid = 0.5 * T_b1_b2[:3, 3] * np.array([1, 1, 0])
+    T_b1_ov = look_at(mid - 0.75 * across + np.array([0.0, 0.0, 0.7]), mid + np.array([0, 0, 0.12]))
+    K_ov = np.array([[520.0, 0.0, 399.5], [0.0, 520.0, 299.5], [0.0, 0.0, 1.0]])
+    return world.render(T_b1_ov, K_ov, 800, 600)[0], K_ov, T_b1_ov
+
+
+def _object_records(specs: list, T_b1_o: list, pairs: list) -> list[dict]:
+    """The ground-truth object list."""
+    objs = []
+    for k, (spec, T) in enumerate(zip(specs, T_b1_o)):
+        objs.append({
+            "id": k, "name": f"{spec.kind}_{k}", "kind": spec.kind, "shape": spec.shape, "mask_label": k + 1,
+            "T_b1_o": T, "size": spec.size.round(6), "mass": spec.mass,
+            "fits_gripper": spec.fits_gripper, "needs_two_hands": spec.needs_two_hands,
+            "touching": sorted({j for p in pairs for j in p if k in p} - {k}),
+        })
+    return objs
+
+
+def _gt_extras(seed: int, n_views: int, n_objects: int, level, outlier_frac: float, touching: float, render: bool,
+               image_size, pm_size, depth_stride: int, park: np.ndarray, poses: _Poses, keys: list[str],
+               vstats: list, table, map_model: MapNoise | None, renders: _Renders) -> dict:
+    """The ground truth's extra keys: generator settings, noise, pose errors, outliers, viewpoints, table."""
+    extras = {
+        "T_w_b1": poses.T_w_b1,
+        "synthetic": {
+            "generator": GENERATOR, "seed": seed, "views": n_views, "objects": n_objects, "noise": level.name,
+            "outliers": outlier_frac, "touching": touching, "render": render,
+            "image_size": list(image_size), "pointmap_size": list(pm_size) if render else None,
+            "depth": {"folder": "depth", "stride": depth_stride, "units_m": DEPTH_UNITS_M,
+                      "meaning": "uint16 z-depth of table and object surfaces at image pixels (stride*i, stride*j);"
+                                 " 0 where the ray hits a robot, a camera or nothing"} if render else None,
+            "park_q": park,
+        },
+        "noise": {"level": level.name, "rot_rms_deg": level.rot_deg, "trans_rms_m": level.trans_m,
+                  "depth_rel_sigma": level.depth_rel},
+        "pose_errors": {ARMS[a]: {"rot_deg": np.rad2deg(poses.rot_err[a]).round(4),
+                                  "trans_m": poses.trans_err[a].round(6)} for a in range(2)},
+        "outlier_views": {ARMS[a]: [keys[i] for i in np.flatnonzero(poses.is_out[a])] for a in range(2)},
+        "viewpoints": {ARMS[a]: {k: (round(v, 3) if isinstance(v, float) else v) for k, v in vstats[a].items()}
+                       for a in range(2)},
+        "table": {"T_b1_t": table.T_b1_t, "size": table.size},
+    }
+    if map_model is not None:  # only then: default scenes stay byte-identical
+        extras["synthetic"]["map_noise"] = map_model.name
+        extras["noise"]["map_noise"] = {"model": map_model.name, "depth_scale_rel_sigma": map_model.scale_rel,
+                                        "warp_rel_rms": map_model.warp_rel, "correlated_rel_sigma": map_model.corr_rel,
+                                        "correlation_cells": map_model.corr_cells}
+        if render:
+            extras["map_errors"] = {ARMS[a]: {"depth_scale_rel": np.round(renders.depth_scale_err[a], 6)}
+                                    for a in range(2)}
+    return extras
+
+
 def _generate(root: Path, name: str, seed: int, n_views: int, n_objects: int, level, outlier_frac: float,
               render: bool, touching: float, image_size, focal: float, pm_size, depth_stride: int,
               as_joints: bool, preview: bool, log: _Log, map_model: MapNoise | None = None) -> None:
@@ -207,135 +374,33 @@ def _generate(root: Path, name: str, seed: int, n_views: int, n_objects: int, le
     K = cam.K
     T_b1_b2 = sample_base_pose(rngs["base"])
     T_e_c = [sample_hand_eye(rngs["hand_eye"]), sample_hand_eye(rngs["hand_eye"])]
-    T_b1_b = [np.eye(4), T_b1_b2]
     log(f"seed {seed}: bases {np.linalg.norm(T_b1_b2[:3, 3]):.3f} m apart, {n_objects} objects, {n_views} views per arm")
 
     with SynthWorld(robot, T_b1_b2, rngs["textures"]) as world:
         for a in range(2):
             world.set_hand_eye(a, T_e_c[a])
-        specs = [sample_spec(k, rngs["objects"]) for k in choose_kinds(n_objects, rngs["objects"])]
-        T_b1_o = place_objects(world, specs, rngs["objects"], touching=touching)
-        pairs = touching_pairs(world, world.object_ids)
-        log(f"placed {', '.join(s.kind for s in specs)}; touching pairs {pairs}")
-        centre = np.mean([T[:3, 3] for T in T_b1_o], axis=0)
-        centre[2] = 0.0
-        plans, vstats = [], []
-        for a in range(2):
-            v, st = plan_views(world, a, n_views, rngs[("views1", "views2")[a]], centre, K=K, image_size=image_size)
-            plans.append(v)
-            vstats.append(st)
-            log(f"{ARMS[a]}: {st['visible']} feasible viewpoints of {st['candidates']} tried, chose {n_views}"
-                f" (smallest rotation between two: {st['min_pair_rotation_deg']:.1f} deg)")
-
-        # ---- emulator poses (independent of rendering: same numbers with render=False)
-        T_b1_c_true = [np.array([T_b1_b[a] @ v.T_b_e @ T_e_c[a] for v in plans[a]]) for a in range(2)]
-        is_out = [_choose_outliers(rngs["outliers"], n_views, outlier_frac) for _ in range(2)]
-        reported, rot_err, trans_err = [], [], []
-        for a in range(2):
-            Tr, re, te = perturb_poses(T_b1_c_true[a], level, is_out[a], rngs["poses"])
-            reported.append(Tr)
-            rot_err.append(re)
-            trans_err.append(te)
-        T_w_b1, scale = random_frame(rngs["frame"])
-        T_w_c = [to_frame_w(reported[a], T_w_b1, scale) for a in range(2)]
+        specs, T_b1_o, pairs, plans, vstats = _place_and_plan(world, rngs, n_objects, n_views, touching, K,
+                                                              image_size, log)
+        poses = _emulate_poses(plans, [np.eye(4), T_b1_b2], T_e_c, level, n_views, outlier_frac, rngs)
         keys = [f"images/{i:03d}.png" for i in range(n_views)]
-
-        pts_all, conf_all, col_all, thumbs = [], [], [], []
-        depth_scale_err: list[list[float]] = [[], []]
-        if render:
-            static = set(world.static_ids) | set(world.object_ids)
-            with log.bar("rendering", 2 * n_views) as step:
-                for a in range(2):
-                    world.set_arm(1 - a, world.q_park)
-                    thumbs.append([])
-                    for i, v in enumerate(plans[a]):
-                        world.set_arm(a, v.q)
-                        rgb, depth, seg = world.render(T_b1_c_true[a][i], K, W, H)
-                        mask = np.zeros((H, W), np.uint8)
-                        for k, body in enumerate(world.object_ids):
-                            mask[seg == body] = k + 1
-                        gt_depth = np.where(np.isin(seg, list(static)) & np.isfinite(depth), depth, 0.0)
-                        gt_depth = gt_depth[::depth_stride, ::depth_stride]
-                        gt_q = np.round(gt_depth / DEPTH_UNITS_M)
-                        gt_q[gt_q > 65535] = 0
-                        arm_dir = root / ARMS[a]
-                        _save_png(arm_dir / keys[i], rgb)
-                        _save_png(arm_dir / "masks" / f"{i:03d}.png", mask)
-                        _save_png(arm_dir / "depth" / f"{i:03d}.png", gt_q.astype(np.uint16))
-                        err = None
-                        if map_model is not None:
-                            err, s_err = map_depth_error(map_model, pm_size[1], pm_size[0], rngs["depth"])
-                            depth_scale_err[a].append(s_err)
-                        p3, cf, co = point_map(depth, rgb, K, T_w_c[a][i], scale, pm_size, level.depth_rel,
-                                               rngs["depth"], depth_error=err)
-                        pts_all.append(p3)
-                        conf_all.append(cf)
-                        col_all.append(co)
-                        thumbs[a].append(rgb[::4, ::4])
-                        step()
-                    world.set_arm(a, world.q_park)
-
-        # ---- overview picture: both arms parked, seen from the side of the table
-        overview = None
-        if preview:
-            for a in range(2):
-                world.set_arm(a, world.q_park)
-            across = np.array([-T_b1_b2[1, 3], T_b1_b2[0, 3], 0.0])
-            across /= np.linalg.norm(across)
-            mid = 0.5 * T_b1_b2[:3, 3] * np.array([1, 1, 0])
-            T_b1_ov = look_at(mid - 0.75 * across + np.array([0.0, 0.0, 0.7]), mid + np.array([0, 0, 0.12]))
-            K_ov = np.array([[520.0, 0.0, 399.5], [0.0, 520.0, 299.5], [0.0, 0.0, 1.0]])
-            overview = (world.render(T_b1_ov, K_ov, 800, 600)[0], K_ov, T_b1_ov)
+        renders = _render_all(world, root, plans, keys, poses, K, image_size, pm_size, depth_stride, level,
+                              map_model, rngs, log) if render else _Renders()
+        overview = _overview(world, T_b1_b2) if preview else None
         park = world.q_park.copy()
         table = world.table
 
     # ---- ground truth and the scene files
-    objs = []
-    for k, (spec, T) in enumerate(zip(specs, T_b1_o)):
-        objs.append({
-            "id": k, "name": f"{spec.kind}_{k}", "kind": spec.kind, "shape": spec.shape, "mask_label": k + 1,
-            "T_b1_o": T, "size": spec.size.round(6), "mass": spec.mass,
-            "fits_gripper": spec.fits_gripper, "needs_two_hands": spec.needs_two_hands,
-            "touching": sorted({j for p in pairs for j in p if k in p} - {k}),
-        })
-    arms = []
-    for a in range(2):
-        arms.append(ArmCapture(ARMS[a], list(keys), np.array([v.T_b_e for v in plans[a]]),
-                               np.array([v.q for v in plans[a]])))
-    extras = {
-        "T_w_b1": T_w_b1,
-        "synthetic": {
-            "generator": GENERATOR, "seed": seed, "views": n_views, "objects": n_objects, "noise": level.name,
-            "outliers": outlier_frac, "touching": touching, "render": render,
-            "image_size": list(image_size), "pointmap_size": list(pm_size) if render else None,
-            "depth": {"folder": "depth", "stride": depth_stride, "units_m": DEPTH_UNITS_M,
-                      "meaning": "uint16 z-depth of table and object surfaces at image pixels (stride*i, stride*j);"
-                                 " 0 where the ray hits a robot, a camera or nothing"} if render else None,
-            "park_q": park,
-        },
-        "noise": {"level": level.name, "rot_rms_deg": level.rot_deg, "trans_rms_m": level.trans_m,
-                  "depth_rel_sigma": level.depth_rel},
-        "pose_errors": {ARMS[a]: {"rot_deg": np.rad2deg(rot_err[a]).round(4), "trans_m": trans_err[a].round(6)}
-                        for a in range(2)},
-        "outlier_views": {ARMS[a]: [keys[i] for i in np.flatnonzero(is_out[a])] for a in range(2)},
-        "viewpoints": {ARMS[a]: {k: (round(v, 3) if isinstance(v, float) else v) for k, v in vstats[a].items()}
-                       for a in range(2)},
-        "table": {"T_b1_t": table.T_b1_t, "size": table.size},
-    }
-    if map_model is not None:  # only then: default scenes stay byte-identical
-        extras["synthetic"]["map_noise"] = map_model.name
-        extras["noise"]["map_noise"] = {"model": map_model.name, "depth_scale_rel_sigma": map_model.scale_rel,
-                                        "warp_rel_rms": map_model.warp_rel, "correlated_rel_sigma": map_model.corr_rel,
-                                        "correlation_cells": map_model.corr_cells}
-        if render:
-            extras["map_errors"] = {ARMS[a]: {"depth_scale_rel": np.round(depth_scale_err[a], 6)} for a in range(2)}
-    gt = GroundTruth(T_e_c[0], T_e_c[1], T_b1_b2, scale, objs, extras)
-    M = 2 * n_views
+    objs = _object_records(specs, T_b1_o, pairs)
+    arms = [ArmCapture(ARMS[a], list(keys), np.array([v.T_b_e for v in plans[a]]), np.array([v.q for v in plans[a]]))
+            for a in range(2)]
+    extras = _gt_extras(seed, n_views, n_objects, level, outlier_frac, touching, render, image_size, pm_size,
+                        depth_stride, park, poses, keys, vstats, table, map_model, renders)
+    gt = GroundTruth(T_e_c[0], T_e_c[1], T_b1_b2, poses.scale, objs, extras)
     rec = Reconstruction(
-        arm=np.repeat([1, 2], n_views), image=np.array(keys + keys), T_w_c=np.concatenate(T_w_c),
-        pts3d=np.stack(pts_all) if render else None, conf=np.stack(conf_all) if render else None,
-        model="synthetic", colors=np.stack(col_all) if render else None)
-    assert len(rec) == M
+        arm=np.repeat([1, 2], n_views), image=np.array(keys + keys), T_w_c=np.concatenate(poses.T_w_c),
+        pts3d=np.stack(renders.pts) if render else None, conf=np.stack(renders.conf) if render else None,
+        model="synthetic", colors=np.stack(renders.colors) if render else None)
+    assert len(rec) == 2 * n_views
     scene = Scene(root, name, arms[0], arms[1], robot="piper", ee_link=robot.ee_link, camera=cam,
                   reconstruction=rec, ground_truth=gt)
     write_scene(scene, root, as_joints=as_joints)
@@ -343,8 +408,9 @@ def _generate(root: Path, name: str, seed: int, n_views: int, n_objects: int, le
         ov, K_ov, T_b1_ov = overview
         title = (f"{name}: seed {seed}, {n_views} views per arm, noise {level.name}, outliers {outlier_frac:g}"
                  f" - bases {np.linalg.norm(T_b1_b2[:3, 3]):.2f} m apart")
-        save_preview(root / "preview.png", ov, K_ov, T_b1_ov, T_b1_c_true, K, image_size, objs,
-                     thumbs if render else None, is_out, title)
+        save_preview(root / "preview.png", ov, K_ov, T_b1_ov, poses.T_b1_c_true, K, image_size, objs,
+                     renders.thumbs if render else None, poses.is_out, title)
     min_rot = [float(np.rad2deg(rotation_angle_between(T[:, None, :3, :3], T[None, :, :3, :3])[~np.eye(len(T), dtype=bool)].min()))
-               for T in T_b1_c_true]
+               for T in poses.T_b1_c_true]
     log(f"smallest rotation between views: primary {min_rot[0]:.1f} deg, secondary {min_rot[1]:.1f} deg")
+

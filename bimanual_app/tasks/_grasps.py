@@ -154,9 +154,9 @@ def handover_candidates(grasps: dict, path: str) -> list[HandoverChoice]:
     """Every hand-over in grasps.json (each object's ``handover`` and its ``handover_alternatives``): those of
     objects whose shape the cloud determines (a box or a cylinder, grasps.json ``shape``) first, then the
     free-form ones; best score first within each. A free-form object seen from some sides only (a mug without
-    its handle, a bunny's far side) hides what meets the receiver's fingers: on the task bench two such
-    hand-overs passed the preview on the reconstruction and failed in reality, where the scene's cylinder
-    was handed over."""
+    its handle, a bunny's far side) hides what meets the receiver's fingers, so such a hand-over can pass
+    the preview on the reconstruction and fail in reality where a box or a cylinder would not
+    (docs/tasks.md)."""
     out = []
     pre = float(grasps.get("pregrasp_distance") or 0.08)
     for o in _objects(grasps):

@@ -41,9 +41,9 @@ LIFT = 0.15  # m the joint grasp lifts the object (>= 10 cm needed)
 LIFT_MIN = 0.105  # m: the least lift it falls back to at the top of the arms' reach
 RETREAT_UP = 0.08  # m of the fallback retreats of a push pair (straight up, or further back from the faces)
 # m: a push pair's approach stops this far out from the faces, and the squeeze starts there. The faces'
-# depth comes from the segment's points, which miss the last millimetres of an edge (on the task bench the
-# large box came out 4-10 mm shorter than it is): an approach from above that ended on the estimated face
-# put the fingertips on the real box's top.
+# depth comes from the segment's points, which miss the last millimetres of an edge (a box's segment comes
+# out a few millimetres shorter than the box): an approach from above that ended on the estimated face
+# would put the fingertips on the real box's top (docs/tasks.md).
 PUSH_STANDOFF = 0.01
 HANDOVER_LIFT = 0.06  # m straight up after the pick, before the free carry
 HANDOVER_LIFTS = (HANDOVER_LIFT, 0.10, 0.14, 0.04)  # tried in order: higher beside a taller neighbour
@@ -159,8 +159,8 @@ def _face_gap(motion: TaskMotion, g: GraspSpec, lateral: float = 0.03, cap: floa
     point, so the squeeze is extended by the gap (at most ``cap``) to press ``press`` past it on both sides.
 
     Measured from the fingertips, not from the gripper origin: that lies half a finger's thickness (and
-    more on a tilted gripper) outside the face, and counting it drove the fingertips 2 cm into the box on
-    the task bench, where the pressed finger then caught the box's top edge."""
+    more on a tilted gripper) outside the face, and counting it would drive the fingertips centimetres into
+    the box, where the pressed finger can catch the box's top edge."""
     n = g.squeeze_dir
     origin = g.T_b1_g[:3, 3] if g.contact is None else np.asarray(g.contact, dtype=np.float64)
     d = motion.object_points - origin
