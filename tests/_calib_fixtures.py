@@ -196,3 +196,33 @@ def write_capture_scene(cap: Capture, path: str | Path, name: str = "calib_fixtu
     from bimanual_app.scene import write_scene
 
     return write_scene(make_scene(cap, name), path)
+
+
+def flat_views(arms=(1, 1, 2)) -> list:
+    """Point-map views (``calibration._pointmaps.PointMapView``) of one flat patch, one per entry of ``arms``."""
+    from calibration._pointmaps import PointMapView
+
+    pts = np.random.default_rng(1).uniform(-0.1, 0.1, (100, 3)) + [0, 0, 0.5]
+    nrm = np.tile([0.0, 0.0, -1.0], (100, 1))
+    return [PointMapView(a, np.eye(4), pts, nrm) for a in arms]
+
+
+def random_pair_problem(seed: int = 0):
+    """``(views, start, pairs)``: six random point-map views (three per arm), a calibration to start from and
+    random point pairs within and across the arms, for checking the point-map Jacobians."""
+    from bimanual_app.transforms import make_T, so3_exp
+    from calibration._pointmaps import MapPairs, PointMapView
+
+    rng = np.random.default_rng(seed)
+    views = []
+    for v in range(6):
+        n = rng.normal(size=(50, 3))
+        views.append(PointMapView(1 if v < 3 else 2, make_T(so3_exp(rng.normal(size=3) * 0.3), rng.normal(size=3) * 0.2),
+                                  rng.uniform(-0.2, 0.2, (50, 3)) + [0, 0, 0.5], n / np.linalg.norm(n, axis=1, keepdims=True)))
+    start = (make_T(so3_exp([0.1, 0.2, 0.3]), [0.05, 0, 0.04]), make_T(so3_exp([0, -0.2, 0.1]), [0.06, 0.01, 0.03]),
+             0.8, make_T(so3_exp([0, 0, 3.0]), [0.7, 0, 0]))
+    va = np.repeat(np.arange(6), 40)
+    vb = (va + rng.integers(1, 6, len(va))) % 6  # pairs within each arm and across
+    pairs = MapPairs(va, rng.uniform(-0.2, 0.2, (len(va), 3)) + [0, 0, 0.5], vb,
+                     rng.uniform(-0.2, 0.2, (len(va), 3)) + [0, 0, 0.5], rng.normal(size=(len(va), 3)), 6)
+    return views, start, pairs

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from bimanual_app.transforms import make_T
@@ -11,6 +12,22 @@ from bimanual_app.transforms import make_T
 T_B1_B2 = make_T(Rotation.from_euler("z", np.pi).as_matrix(), np.array([0.7, 0.0, 0.0]))
 BOX_CENTER = np.array([0.32, 0.0, 0.08])  # a 10 x 10 x 16 cm box standing on the table
 BOX_HALF = np.array([0.05, 0.05, 0.08])
+
+
+@pytest.fixture(scope="module")
+def piper():
+    """The Piper robot model (import this fixture into a test module)."""
+    from bimanual_app.robots import load_robot
+
+    return load_robot("piper")
+
+
+@pytest.fixture(scope="module")
+def solver(piper):
+    """An IK solver for :func:`piper`."""
+    from bimanual_app.kinematics import IKSolver
+
+    return IKSolver(piper)
 
 
 def table_cloud(spacing: float = 0.008, box: bool = True, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

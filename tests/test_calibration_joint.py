@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bimanual_app.transforms import make_T, rotation_angle_between, so3_exp
+from bimanual_app.transforms import rotation_angle_between
 from tests._synth_fixtures import synth_none  # noqa: F401  (fixture)
 
 
@@ -46,13 +46,9 @@ def test_joint_estimate_beats_the_pose_only_solve_and_says_why(paper_scene):
 def test_joint_estimate_needs_two_views_per_arm():
     from calibration._estimate import estimate_jointly
     from calibration._joint import JointState
+    from tests._calib_fixtures import flat_views
 
-    pts = np.random.default_rng(1).uniform(-0.1, 0.1, (100, 3)) + [0, 0, 0.5]
-    nrm = np.tile([0.0, 0.0, -1.0], (100, 1))
-    from calibration._pointmaps import PointMapView
-
-    views = [PointMapView(1, np.eye(4), pts, nrm), PointMapView(1, np.eye(4), pts, nrm),
-             PointMapView(2, np.eye(4), pts, nrm)]
+    views = flat_views()
     E = np.tile(np.eye(4), (3, 1, 1))
     st = JointState(np.eye(4), np.eye(4), 1.0, np.eye(4), np.eye(4), np.zeros(3))
     r = estimate_jointly(views, np.array([1, 1, 2]), E, E, st, (0.01, 0.01))
@@ -60,21 +56,11 @@ def test_joint_estimate_needs_two_views_per_arm():
 
 
 def test_analytic_jacobian_matches_finite_differences():
-    from calibration._pointmaps import MapPairs, PointMapView, map_jacobian, map_residuals
+    from calibration._pointmaps import map_jacobian, map_residuals
+    from tests._calib_fixtures import random_pair_problem
 
-    rng = np.random.default_rng(0)
-    views = []
-    for v in range(6):
-        n = rng.normal(size=(50, 3))
-        views.append(PointMapView(1 if v < 3 else 2, make_T(so3_exp(rng.normal(size=3) * 0.3), rng.normal(size=3) * 0.2),
-                                  rng.uniform(-0.2, 0.2, (50, 3)) + [0, 0, 0.5], n / np.linalg.norm(n, axis=1, keepdims=True)))
-    start = (make_T(so3_exp([0.1, 0.2, 0.3]), [0.05, 0, 0.04]), make_T(so3_exp([0, -0.2, 0.1]), [0.06, 0.01, 0.03]),
-             0.8, make_T(so3_exp([0, 0, 3.0]), [0.7, 0, 0]))
-    kappa = rng.normal(scale=0.02, size=6)
-    va = np.repeat(np.arange(6), 40)
-    vb = (va + rng.integers(1, 6, len(va))) % 6  # pairs within each arm and across
-    pairs = MapPairs(va, rng.uniform(-0.2, 0.2, (len(va), 3)) + [0, 0, 0.5], vb,
-                     rng.uniform(-0.2, 0.2, (len(va), 3)) + [0, 0, 0.5], rng.normal(size=(len(va), 3)), 6)
+    views, start, pairs = random_pair_problem()
+    kappa = np.random.default_rng(5).normal(scale=0.02, size=6)
     J, Jk = map_jacobian(np.zeros(19), kappa, views, start, pairs)
     h = 1e-6
 

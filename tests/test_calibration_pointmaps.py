@@ -94,12 +94,10 @@ def test_unusable_point_maps_leave_the_joint_solve_as_it_was(paper_scene):
 
 
 def test_refinement_needs_two_views_per_arm():
-    from calibration._pointmap_refine import PointMapView, refine_with_point_maps
+    from calibration._pointmap_refine import refine_with_point_maps
+    from tests._calib_fixtures import flat_views
 
-    pts = np.random.default_rng(1).uniform(-0.1, 0.1, (100, 3)) + [0, 0, 0.5]
-    nrm = np.tile([0.0, 0.0, -1.0], (100, 1))
-    views = [PointMapView(1, np.eye(4), pts, nrm), PointMapView(1, np.eye(4), pts, nrm),
-             PointMapView(2, np.eye(4), pts, nrm)]
+    views = flat_views()
     r = refine_with_point_maps(views, np.eye(4), np.eye(4), 1.0, np.eye(4))
     assert not r.accepted and "2 or more point maps per arm" in r.reason and "2 / 1" in r.reason
 
@@ -142,21 +140,10 @@ def test_cli_writes_the_refinement_and_can_skip_it(paper_scene, tmp_path, capsys
 
 
 def test_analytic_jacobian_matches_finite_differences():
-    from calibration._pointmap_refine import PointMapView, _jacobian, _residuals
-    from calibration._pointmaps import MapPairs
+    from calibration._pointmap_refine import _jacobian, _residuals
+    from tests._calib_fixtures import random_pair_problem
 
-    rng = np.random.default_rng(0)
-    views = []
-    for v in range(6):
-        n = rng.normal(size=(50, 3))
-        views.append(PointMapView(1 if v < 3 else 2, make_T(so3_exp(rng.normal(size=3) * 0.3), rng.normal(size=3) * 0.2),
-                                  rng.uniform(-0.2, 0.2, (50, 3)) + [0, 0, 0.5], n / np.linalg.norm(n, axis=1, keepdims=True)))
-    start = (make_T(so3_exp([0.1, 0.2, 0.3]), [0.05, 0, 0.04]), make_T(so3_exp([0, -0.2, 0.1]), [0.06, 0.01, 0.03]),
-             0.8, make_T(so3_exp([0, 0, 3.0]), [0.7, 0, 0]))
-    va = np.repeat(np.arange(6), 40)
-    vb = (va + rng.integers(1, 6, len(va))) % 6  # pairs within each arm and across
-    pairs = MapPairs(va, rng.uniform(-0.2, 0.2, (len(va), 3)) + [0, 0, 0.5], vb,
-                     rng.uniform(-0.2, 0.2, (len(va), 3)) + [0, 0, 0.5], rng.normal(size=(len(va), 3)), 6)
+    views, start, pairs = random_pair_problem()
     J = _jacobian(np.zeros(19), views, start, pairs)
     h = 1e-6
     Jn = np.stack([(_residuals(h * e, views, start, pairs) - _residuals(-h * e, views, start, pairs)) / (2 * h)

@@ -5,20 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _motion_fixtures import piper, solver  # noqa: F401  (fixtures)
 
-from bimanual_app.kinematics import IKSolver
 from bimanual_app.kinematics._dls import descend, log6
-from bimanual_app.robots import load_robot
-
-
-@pytest.fixture(scope="module")
-def piper():
-    return load_robot("piper")
-
-
-@pytest.fixture(scope="module")
-def solver(piper):
-    return IKSolver(piper)
 
 
 def _targets(piper, n: int, seed: int) -> np.ndarray:

@@ -6,20 +6,11 @@ import os
 
 import numpy as np
 import pytest
+from _motion_fixtures import piper, solver  # noqa: F401  (fixtures)
 
 from bimanual_app.kinematics import IKSolver, solve_ik
 from bimanual_app.robots import load_robot
 from bimanual_app.transforms import rotation_angle_between
-
-
-@pytest.fixture(scope="module")
-def piper():
-    return load_robot("piper")
-
-
-@pytest.fixture(scope="module")
-def solver(piper):
-    return IKSolver(piper)
 
 
 def test_ik_reaches_fk_targets(piper, solver):
