@@ -74,7 +74,24 @@ def run(args: argparse.Namespace) -> int:
               f"http://127.0.0.1:{port}", flush=True)
         print("  Ctrl-C stops" + (f"; stops by itself after {args.timeout:g} s" if args.timeout else ""), flush=True)
 
-    serve(layers, host=args.host, port=args.port, timeout=args.timeout, on_ready=ready, task=args.task, at=args.at,
-          hide=tuple(args.hide))
+    try:
+        serve(layers, host=args.host, port=args.port, timeout=args.timeout, on_ready=ready, task=args.task, at=args.at,
+              hide=tuple(args.hide))
+    except KeyboardInterrupt:
+        print("bijcr view: interrupted", file=sys.stderr, flush=True)
+        _end_process(130)
     print("bijcr view: stopped", flush=True)
+    _end_process(0)
     return 0
+
+
+def _end_process(code: int) -> None:
+    """End the process now that the server has stopped. viser runs the page's callbacks on a thread pool, and
+    interpreter shutdown waits for every running callback: one caught mid-way (a browser that just left)
+    kept the process alive after Ctrl-C. The viewer writes nothing, so nothing is left half-done."""
+    import os
+    import sys
+
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
