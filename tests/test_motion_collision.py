@@ -230,3 +230,25 @@ def test_scene_map_distance_field_equals_scipy_edt():
     want = ndimage.distance_transform_edt(free, sampling=0.005).astype(np.float32)
     assert np.array_equal(_edt(free, 0.005, chunk_cells=1000), want)
     assert np.array_equal(_edt(free, 0.005), want)
+
+
+def test_tables_follow_every_attach_and_detach(piper, cloud):
+    """The world's shape tables are rebuilt after every attach / detach: every rebuild has a new version.
+    (The cache key was the shapes' id(); in a full test run a new ArmShapes at a freed one's address kept
+    stale tables and the broad phase indexed past its samples. That reuse depends on the allocator, so this
+    checks the invariant over many cycles rather than reproducing it.)"""
+    pts, mask = cloud
+    w = CollisionWorld(piper, T_B1_B2, pts)
+    q0 = piper.neutral()
+    seen = set()
+    for k in range(30):
+        w.attach("primary", pts[mask][: 50 + 10 * (k % 3)], q0, name="object")
+        w.valid_batch(np.tile(q0, (3, 1)), q0)
+        tab = w._tables()
+        assert len(tab["sample_start"]) == len(w.arms[0].shapes.shapes) + len(w.arms[1].shapes.shapes)
+        assert tab["sample_start"].max() < sum(len(a.sample_owner) for a in w.arms)
+        seen.add(w.arms[0].version)
+        w.detach("primary")
+        w.valid_batch(np.tile(q0, (3, 1)), q0)
+        assert len(w._tables()["sample_start"]) == len(w.arms[0].shapes.shapes) + len(w.arms[1].shapes.shapes)
+    assert len(seen) == 30

@@ -22,6 +22,7 @@ gripper; it then moves with the gripper and is checked against the scene and the
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -55,6 +56,9 @@ class DistanceReport:
     contacts: list = field(default_factory=list)
 
 
+_SHAPE_VERSIONS = itertools.count()
+
+
 class _Arm:
     """One arm placed in b1: its robot, base pose, shapes and broad-phase sample points."""
 
@@ -70,6 +74,9 @@ class _Arm:
 
     def rebuild(self) -> None:
         self.shapes: ArmShapes = arm_shapes(self.robot, extra=self.extra)
+        # a new number for every rebuild: the world's tables are cached by it (an object's id() is no key:
+        # a freed ArmShapes' address is reused by the next one, which left stale tables after attach / detach)
+        self.version = next(_SHAPE_VERSIONS)
         sh = self.shapes
         joints_used = np.unique(sh.joint)
         self.joints_used = joints_used
@@ -312,7 +319,7 @@ class CollisionWorld:
 
     def _tables(self) -> dict:
         """Shape, sample and pair tables over all arms (cached; rebuilt after attach / detach)."""
-        key = tuple(id(a.shapes) for a in self.arms)
+        key = tuple(a.version for a in self.arms)
         if getattr(self, "_tab_key", None) == key:
             return self._tab
         arm_of, local, offs, pairs, margins, kinds = [], [], [], [], [], []
