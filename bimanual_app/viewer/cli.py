@@ -74,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
               f"http://127.0.0.1:{port}", flush=True)
         print("  Ctrl-C stops" + (f"; stops by itself after {args.timeout:g} s" if args.timeout else ""), flush=True)
 
+    _exit_soon_after_ctrl_c()
     try:
         serve(layers, host=args.host, port=args.port, timeout=args.timeout, on_ready=ready, task=args.task, at=args.at,
               hide=tuple(args.hide))
@@ -83,6 +84,35 @@ def run(args: argparse.Namespace) -> int:
     print("bijcr view: stopped", flush=True)
     _end_process(0)
     return 0
+
+
+#: seconds the server may take to stop after Ctrl-C before the process ends regardless
+STOP_GRACE_S = 10.0
+
+
+def _exit_soon_after_ctrl_c() -> None:
+    """Ctrl-C raises KeyboardInterrupt as usual (the server stops in order), and also starts a watchdog that
+    ends the process after STOP_GRACE_S if stopping hangs (in a full test run the server's stop once never
+    returned); a second Ctrl-C ends it at once."""
+    import signal
+    import sys
+    import threading
+
+    def on_sigint(signum, frame):
+        if getattr(on_sigint, "fired", False):
+            _end_process(130)
+        on_sigint.fired = True
+
+        def give_up():
+            print("bijcr view: interrupted (the server did not stop in time)", file=sys.stderr, flush=True)
+            _end_process(130)
+
+        watchdog = threading.Timer(STOP_GRACE_S, give_up)
+        watchdog.daemon = True
+        watchdog.start()
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, on_sigint)
 
 
 def _end_process(code: int) -> None:
