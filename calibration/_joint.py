@@ -42,11 +42,11 @@ MAP_SIGMA_FLOOR = 2e-4  # m: no point map agrees better than this
 #: like a depth factor): measured on rendered scenes it came out at 0.4-0.7 % where the maps had none, and
 #: the hand-eye translations 3x worse; at 0.1 % the real capture gains most of what free factors gave.
 KAPPA_SIGMA = 1e-3
-MEAN_KAPPA_SIGMA = 1e-4
+MEAN_KAPPA_SIGMA = 1e-4  # each arm's mean depth factor: held at zero (see depth_prior_term)
 #: point-to-plane distances are weighted (Huber, knee HUBER_K of the view's noise) at each round's start
 #: and left out beyond TRIM of it: the pair summaries are plain least squares, so robustness is per point
 HUBER_K = 2.5
-TRIM = 10.0  # each arm's mean depth factor: held at zero (see depth_prior_term)
+TRIM = 10.0
 
 
 @dataclass(frozen=True)
@@ -165,7 +165,6 @@ def map_term(st: JointState, views: list, pairs, sigma_v: np.ndarray, sigma_pair
     from ._pointmaps import _geometry
 
     V = len(views)
-    zero = np.zeros(N_CAL + V)
     _, t, _, Xa, Xb, Nb = _geometry(np.zeros(19), st.kappa, views, st.calibration, pairs)
     raw0 = np.sum((Xa - Xb) * Nb, axis=1)
     w = 1.0 / np.asarray(sigma_v, dtype=np.float64)[pairs.va]
@@ -197,8 +196,7 @@ def map_term(st: JointState, views: list, pairs, sigma_v: np.ndarray, sigma_pair
     return CostTerm("point maps", res, jac, np.zeros(m, dtype=int), np.array([sigma_pair], dtype=np.float64),
                     _update_pair_noise, np.stack([lo[who], hi[who]], axis=1) if m else np.zeros((0, 2), int),
                     {"sigma_view_m": np.asarray(sigma_v, dtype=np.float64), "pairs": pairs, "blocks": len(blocks),
-                     "points": int(sum(len(i) for i, _ in blocks)), "raw": lambda: map_residuals(
-                         np.zeros(19), st.kappa, views, st.calibration, pairs), "zero": zero})
+                     "points": int(sum(len(i) for i, _ in blocks)), "raw": raw0})
 
 
 def _summary_matrix(blocks: list, n: int):
@@ -228,7 +226,7 @@ def _update_pair_noise(term: CostTerm, raw: np.ndarray, red: np.ndarray) -> np.n
     """Variance components of the pair summaries (squares capped at (3 sigma)^2), and the views' own
     noise re-measured for the next round."""
     pairs = term.info["pairs"]
-    term.info["sigma_view_m"] = view_map_noise(term.info["raw"](), pairs.va, len(term.info["sigma_view_m"]))
+    term.info["sigma_view_m"] = view_map_noise(term.info["raw"], pairs.va, len(term.info["sigma_view_m"]))
     den = red.sum()
     if den < 3.0:
         return term.sigma
