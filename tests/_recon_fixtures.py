@@ -261,8 +261,7 @@ def write_model_export(out: Path, model: str, scene_dir: Path, gt: dict, S: np.n
         packed = tool.pack(names, sizes, R_p3d, t_p3d)
     else:
         raise ValueError(model)
-    return common.write_export(out, packed.pop("model"), packed.pop("names"), packed.pop("orig_size"),
-                               packed.pop("model_size"), packed.pop("crop_box"), **packed)
+    return common.write_packed(out, packed)
 
 
 def expected_T_w_c(gt: dict, S: np.ndarray, arm: str, key: str) -> np.ndarray:

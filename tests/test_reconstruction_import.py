@@ -86,6 +86,19 @@ def test_dust3r_224_crop_leaves_the_sides_unseen(scene3, tmp_path):
     assert np.all(np.isfinite(rec.pts3d))
 
 
+def test_export_without_the_models_project_names_the_environment():
+    """An export script run outside the model's Python environment exits with one line saying which."""
+    common = load_tool("export_common")
+
+    def run():
+        import dust3r_not_installed_here  # noqa: F401
+
+    with pytest.raises(SystemExit) as e:
+        common.run_in_model_env(run, "DUSt3R")
+    assert "DUSt3R's Python environment" in str(e.value) and "--repo" in str(e.value)
+    assert common.run_in_model_env(lambda: 7, "DUSt3R") == 7
+
+
 def test_vggt_pad_mode_box_reaches_beyond_the_image(scene3, tmp_path):
     root, gt, scene, S = scene3
     tool = load_tool("export_vggt")

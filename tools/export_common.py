@@ -189,3 +189,20 @@ def write_export(out: str | Path, model: str, names: list[str], orig_size, model
         raise
     print(f"wrote {out}: {model}, {N} images, keys {', '.join(sorted(data))}")
     return out
+
+
+def write_packed(out: str | Path, packed: dict) -> Path:
+    """:func:`write_export` of a script's ``pack`` result (its ``model``, ``names``, size and crop keys, then
+    its arrays)."""
+    arrays = dict(packed)
+    head = [arrays.pop(k) for k in ("model", "names", "orig_size", "model_size", "crop_box")]
+    return write_export(out, *head, **arrays)
+
+
+def run_in_model_env(run, model: str):
+    """``run()``, the model's own inference; a missing module of the model's project becomes a one-line exit
+    that says which environment to run the script in."""
+    try:
+        return run()
+    except ModuleNotFoundError as e:
+        sys.exit(f"{e}: run this script with {model}'s Python environment, or pass --repo PATH_TO_ITS_CHECKOUT")

@@ -27,10 +27,11 @@ from export_common import (  # noqa: E402
     add_repo,
     dust3r_crop_box,
     image_size,
+    run_in_model_env,
     scene_images,
     stack_padded,
     to_uint8_images,
-    write_export,
+    write_packed,
 )
 
 
@@ -113,14 +114,10 @@ def main(argv: list[str] | None = None) -> int:
     add_repo(args.repo)
     names, paths = scene_images(args.scene)
     sizes = [image_size(p) for p in paths]
-    try:
-        raw = run_model(paths, args.weights, args.size, args.niter, args.device, args.batch_size)
-    except ModuleNotFoundError as e:
-        sys.exit(f"{e}: run this script with DUSt3R's Python environment, or pass --repo PATH_TO_ITS_CHECKOUT")
+    raw = run_in_model_env(lambda: run_model(paths, args.weights, args.size, args.niter, args.device, args.batch_size), "DUSt3R")
     packed = pack("dust3r", names, sizes, args.size, raw["cam2world"], raw["pts3d"], raw["conf"], raw["focals"],
                   raw["pps"], raw["imgs"])
-    write_export(args.out, packed.pop("model"), packed.pop("names"), packed.pop("orig_size"), packed.pop("model_size"),
-                 packed.pop("crop_box"), **packed)
+    write_packed(args.out, packed)
     return 0
 
 

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from export_common import add_repo, image_size, scene_images, write_export  # noqa: E402
+from export_common import add_repo, image_size, run_in_model_env, scene_images, write_packed  # noqa: E402
 from export_dust3r import pack  # noqa: E402  (same layout: camera-to-world poses + point maps)
 
 
@@ -73,14 +73,10 @@ def main(argv: list[str] | None = None) -> int:
     add_repo(args.repo)
     names, paths = scene_images(args.scene)
     sizes = [image_size(p) for p in paths]
-    try:
-        raw = run_model(paths, args.weights, args.size, args.device, args.niter1, args.niter2, args.matching_conf_thr)
-    except ModuleNotFoundError as e:
-        sys.exit(f"{e}: run this script with MASt3R's Python environment, or pass --repo PATH_TO_ITS_CHECKOUT")
+    raw = run_in_model_env(lambda: run_model(paths, args.weights, args.size, args.device, args.niter1, args.niter2, args.matching_conf_thr), "MASt3R")
     packed = pack("mast3r", names, sizes, args.size, raw["cam2world"], raw["pts3d"], raw["conf"], raw["focals"],
                   raw["pps"], raw["imgs"])
-    write_export(args.out, packed.pop("model"), packed.pop("names"), packed.pop("orig_size"), packed.pop("model_size"),
-                 packed.pop("crop_box"), **packed)
+    write_packed(args.out, packed)
     return 0
 
 

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from export_common import add_repo, image_size, scene_images, write_export  # noqa: E402
+from export_common import add_repo, image_size, run_in_model_env, scene_images, write_packed  # noqa: E402
 
 CROP_SCALE = 1.15   # CustomDataset.jitter_scale (both bounds), no jitter translation
 MODEL_SIZE = 224
@@ -98,13 +98,9 @@ def main(argv: list[str] | None = None) -> int:
     add_repo(args.repo)
     names, paths = scene_images(args.scene)
     sizes = [image_size(p) for p in paths]
-    try:
-        raw = run_model(paths, args.model_dir, args.device)
-    except ModuleNotFoundError as e:
-        sys.exit(f"{e}: run this script with Ray Diffusion's Python environment, or pass --repo PATH_TO_ITS_CHECKOUT")
+    raw = run_in_model_env(lambda: run_model(paths, args.model_dir, args.device), "Ray Diffusion")
     packed = pack(names, sizes, raw["R"], raw["T"], raw.get("focal_length"), raw.get("principal_point"))
-    write_export(args.out, packed.pop("model"), packed.pop("names"), packed.pop("orig_size"), packed.pop("model_size"),
-                 packed.pop("crop_box"), **packed)
+    write_packed(args.out, packed)
     return 0
 
 

@@ -29,11 +29,12 @@ from export_common import (  # noqa: E402
     add_repo,
     image_size,
     pad_box,
+    run_in_model_env,
     scene_images,
     stack_padded,
     to_uint8_images,
     vggt_crop_box,
-    write_export,
+    write_packed,
 )
 
 
@@ -124,13 +125,9 @@ def main(argv: list[str] | None = None) -> int:
     add_repo(args.repo)
     names, paths = scene_images(args.scene)
     sizes = [image_size(p) for p in paths]
-    try:
-        raw = run_model(paths, args.weights, args.mode, args.points, args.device)
-    except ModuleNotFoundError as e:
-        sys.exit(f"{e}: run this script with VGGT's Python environment, or pass --repo PATH_TO_ITS_CHECKOUT")
+    raw = run_in_model_env(lambda: run_model(paths, args.weights, args.mode, args.points, args.device), "VGGT")
     packed = pack(names, sizes, args.mode, raw["extrinsic"], raw["intrinsic"], raw["pts3d"], raw["conf"], raw["images"])
-    write_export(args.out, packed.pop("model"), packed.pop("names"), packed.pop("orig_size"), packed.pop("model_size"),
-                 packed.pop("crop_box"), **packed)
+    write_packed(args.out, packed)
     return 0
 
 
