@@ -70,6 +70,20 @@ def pair_geometry(xyz: np.ndarray, normal: np.ndarray, pairs: np.ndarray, params
     return score, smooth & ~step
 
 
+def _dominant_masks(votes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each region's dominant mask id per view and whether it dominates.
+
+    Args:
+        votes: (R, V, L) mask-id votes of R regions in V views.
+    Returns:
+        ``(ids, sure)``: (R, V) argmax id, and (R, V) bool: the view has votes and >= 60 % are for that id.
+    """
+    total = votes.sum(2)
+    top = votes.max(2)
+    sure = (total >= 1) & (top / np.maximum(total, 1e-12) >= 0.6)
+    return votes.argmax(2), sure
+
+
 class RegionGraph:
     """Regions (sets of patches) with summed statistics, and summed boundary evidence between them.
 
@@ -87,6 +101,8 @@ class RegionGraph:
         self.nvox = nvox.astype(np.float64).copy()
         self.hist = None if hist is None else hist.astype(np.float64).copy()
         self.masks = None if masks is None else masks.astype(np.float64)
+        if self.masks is not None:  # each region's dominant mask id per view, kept up to date by merge()
+            self.mask_id, self.mask_sure = _dominant_masks(self.masks)
         self.parent = np.arange(P)
         self.alive = np.ones(P, bool)
         self.adj: list[dict[int, list[float]]] = [dict() for _ in range(P)]
@@ -116,24 +132,18 @@ class RegionGraph:
         return conf * min(1.0, max(0.0, (dist - self.p.colour_tol) / self.p.colour_span))
 
     def mask_agreement(self, a: int, b: int) -> float:
-        """In [-1, 1]: views where both regions' dominant mask id is the same (+) or different (-)."""
+        """In [-1, 1]: views where both regions' dominant mask id is the same (+) or different (-).
+
+        Only views where each region has a dominant id (>= 60 % of its mask votes there) count, and at
+        least ``MASK_MIN_VIEWS`` of them."""
         if self.masks is None:
             return 0.0
-        ha, hb = self.masks[a], self.masks[b]  # (V, L)
-        ta, tb = ha.sum(1), hb.sum(1)
-        ok = (ta >= 1) & (tb >= 1)
-        if not ok.any():
+        both = self.mask_sure[a] & self.mask_sure[b]
+        n = int(both.sum())
+        if n < MASK_MIN_VIEWS:
             return 0.0
-        ida, idb = ha[ok].argmax(1), hb[ok].argmax(1)
-        fa = ha[ok].max(1) / ta[ok]
-        fb = hb[ok].max(1) / tb[ok]
-        sure = (fa >= 0.6) & (fb >= 0.6)
-        if not sure.any():
-            return 0.0
-        same = (ida == idb)[sure]
-        if len(same) < MASK_MIN_VIEWS:
-            return 0.0
-        return float(same.sum() - (~same).sum()) / len(same)
+        same = int((self.mask_id[a][both] == self.mask_id[b][both]).sum())
+        return float(2 * same - n) / n
 
     def affinity(self, a: int, b: int) -> float:
         """Merge priority of adjacent regions: evidence, discounted when the boundary is a few voxels."""
@@ -174,6 +184,8 @@ class RegionGraph:
             self.hist[a] += self.hist[b]
         if self.masks is not None:
             self.masks[a] += self.masks[b]
+            ids, sure = _dominant_masks(self.masks[a:a + 1])
+            self.mask_id[a], self.mask_sure[a] = ids[0], sure[0]
         self.alive[b] = False
         self.parent[b] = a
         return a, changed
