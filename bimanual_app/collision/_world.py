@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bimanual_app.collision._capsules import segment_distance
-from bimanual_app.collision._scene_map import SceneMap
+from bimanual_app.collision._scene_map import SceneMap, shared_scene_map
 from bimanual_app.collision._shapes import ArmShapes, Shape, arm_shapes, obb_of_points
 from bimanual_app.transforms import check_T
 
@@ -201,7 +201,9 @@ class CollisionWorld:
                 reach = max(float(np.sum(a.lever[:1])) for a in self.arms) + 0.3
                 crop_box = (bases.min(axis=0) - reach, bases.max(axis=0) + reach)
             pad = max(float(a.shapes.radius.max()) for a in self.arms) + self.margin + 0.1
-            self.scene = SceneMap(scene, resolution, pad=pad, crop=crop_box)
+            # built once per process for these points (the maps are never edited): the worlds of both tasks
+            # of one run, and of every object a task tries, share it
+            self.scene = shared_scene_map(scene, resolution, pad=pad, crop=crop_box)
         self.stats = {"configs": 0, "narrow": 0}
         self.chunk = 512  # configurations per vectorised pass
 
@@ -405,7 +407,8 @@ class CollisionWorld:
         dmin = np.minimum.reduceat(sm.lookup(Sm), tab["sample_start"], axis=1)  # (n, S)
         lb = dmin - (sm.slack_lower + tab["cover"])
         clear = (lb >= self.margin) | tab["fixed"]  # the base stands on the table: never checked
-        hit = (~clear) & tab["exact"] & (dmin + (sm.slack_upper - tab["radius"]) < self.margin)
+        # an upper bound only below the field's cap (a capped value says "at least pad away")
+        hit = (~clear) & tab["exact"] & (dmin < sm.pad) & (dmin + (sm.slack_upper - tab["radius"]) < self.margin)
         ok &= ~hit.any(axis=1)
         if explain:
             reasons += [f"{names[s][0]} {names[s][1]} touches the scene map" for s in np.nonzero(hit[0])[0]]

@@ -93,6 +93,19 @@ class JointTrajectory:
         g = None if self.gripper is None else float((1.0 - a) * self.gripper[i] + a * self.gripper[i + 1])
         return q, g
 
+    def sample_many(self, ts: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """:meth:`sample` at every time of ``ts`` (T,) at once: joint angles (T,J) and widths (T,) or None,
+        the same numbers as one call per time."""
+        t = np.clip(np.asarray(ts, dtype=np.float64), 0.0, self.duration)
+        if len(self.times) == 1:
+            g = None if self.gripper is None else np.full(len(t), float(self.gripper[0]))
+            return np.repeat(self.q[:1], len(t), axis=0), g
+        i = np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, len(self.times) - 2)
+        a = (t - self.times[i]) / (self.times[i + 1] - self.times[i])
+        q = (1.0 - a)[:, None] * self.q[i] + a[:, None] * self.q[i + 1]
+        g = None if self.gripper is None else (1.0 - a) * self.gripper[i] + a * self.gripper[i + 1]
+        return q, g
+
     def resample(self, dt: float) -> JointTrajectory:
         """The same motion sampled every ``dt`` seconds (end point kept)."""
         n = max(2, int(np.ceil(self.duration / dt)) + 1)

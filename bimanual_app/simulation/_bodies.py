@@ -163,7 +163,7 @@ class BodyShape:
         from scipy.spatial import ConvexHull
 
         eq = ConvexHull(self.vertices).equations  # unit outward normals, n.x + d <= 0 inside
-        return np.all(local @ eq[:, :3].T + eq[:, 3] <= margin, axis=1)
+        return _inside_planes(local, eq, margin)
 
     def surface_points_b1(self, spacing: float = 0.01) -> np.ndarray:
         """(K, 3) points on the body's surface in b1: the hull's vertices, or a grid at most ``spacing`` m
@@ -183,6 +183,23 @@ class BodyShape:
                     faces.append(f)
             local = np.unique(np.concatenate(faces), axis=0)
         return local @ self.T_b1_o[:3, :3].T + self.T_b1_o[:3, 3]
+
+
+def _inside_planes(P: np.ndarray, eq: np.ndarray, margin: float, chunk: int = 65536) -> np.ndarray:
+    """(N,) True for points P (N,3) with ``n.p + d <= margin`` for every plane ``eq`` (F,4) (unit n).
+
+    The same test as on all planes at once, in a fraction of the time and memory (an (N,F) array was
+    hundreds of MB for a scene cloud against a hull): first the planes facing 26 directions around the body,
+    which a point far from the body fails, then all of them for the points left, in chunks."""
+    dirs = np.stack(np.meshgrid(*[np.array([-1.0, 0.0, 1.0])] * 3, indexing="ij"), -1).reshape(-1, 3)
+    dirs = dirs[np.any(dirs != 0, axis=1)]  # the 26 directions to a cube's faces, edges and corners
+    few = eq[np.unique(np.argmax(eq[:, :3] @ dirs.T, axis=0))]
+    idx = np.nonzero(np.all(P @ few[:, :3].T + few[:, 3] <= margin, axis=1))[0]
+    out = np.zeros(len(P), dtype=bool)
+    for lo in range(0, len(idx), chunk):
+        sel = idx[lo:lo + chunk]
+        out[sel] = np.all(P[sel] @ eq[:, :3].T + eq[:, 3] <= margin, axis=1)
+    return out
 
 
 def remove_outliers(points: np.ndarray, k: int = 8, std_ratio: float = 2.5) -> np.ndarray:

@@ -377,13 +377,14 @@ class PreviewWorld:
         """
         dur = max((float(tr.duration) for tr in plan.values()), default=0.0)
         n = int(np.ceil(dur / self.dt))
+        t = np.minimum(np.arange(n + 1) * self.dt, dur)
+        t2 = np.minimum(t + self.dt, dur)
+        samples = {name: _samples(tr, t) + (_samples(tr, t2)[0],) for name, tr in plan.items()}
         for k in range(n + 1):
-            t = min(k * self.dt, dur)
-            for name, tr in plan.items():
+            for name, (Q, W, Q2) in samples.items():
                 arm = self.arms[name]
-                q, w = tr.sample(t)
-                q2, _ = tr.sample(min(t + self.dt, dur))
-                arm.command(q, (q2 - q) / self.dt)
+                arm.command(Q[k], (Q2[k] - Q[k]) / self.dt)
+                w = None if W is None else float(W[k])
                 if w is not None and abs(w - arm.width_cmd) > 1e-6:
                     arm.set_gripper(w)
             self.step(1)
@@ -403,3 +404,13 @@ class PreviewWorld:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _samples(tr, ts: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """A trajectory's joint angles (T,J) and widths (T,) or None at the times ``ts`` (T,): all at once where
+    it can (``sample_many``), else one ``sample(t)`` per time."""
+    if hasattr(tr, "sample_many"):
+        return tr.sample_many(ts)
+    out = [tr.sample(float(t)) for t in ts]
+    W = None if out[0][1] is None else np.array([w for _, w in out], dtype=np.float64)
+    return np.stack([np.asarray(q, dtype=np.float64) for q, _ in out]), W

@@ -369,7 +369,7 @@ class TaskMotion:
 
         arms = [a for a in ("primary", "secondary") if a in timeline]
         times = np.unique(np.concatenate([np.asarray(timeline[a].times) for a in arms]))
-        Q = np.concatenate([np.stack([timeline[a].sample(t)[0] for t in times]) for a in arms], axis=1)
+        Q = np.concatenate([timeline[a].sample_many(times)[0] for a in arms], axis=1)
         spans = openings or [(float(times[0]), float(times[-1]), {})]
         for t0, t1, widths in spans:
             sel = (times >= t0 - 1e-9) & (times <= t1 + 1e-9)
@@ -415,8 +415,11 @@ class TaskMotion:
         # not checked: a lift slides them along it, and at the map's sampling and noise a slide cannot be
         # told from a push (the physics preview judges that contact); every other point keeps
         # OBJECT_CLEARANCE from the map
-        d0, _ = self._cut_tree.query(P, k=1)
-        touching = d0 < OBJECT_CLEARANCE + TOUCH_BAND
+        # (searches bounded by the distances that matter: the object is cut out of this map, so an unbounded
+        # nearest-neighbour search from each of its points walks much of the tree)
+        near = OBJECT_CLEARANCE + TOUCH_BAND
+        d0, _ = self._cut_tree.query(P, k=1, distance_upper_bound=2 * near)
+        touching = d0 < near
         for k, T in enumerate(T_moves):
             if float(T[:3, 3] @ up) < skip_rise and np.allclose(T[:3, :3], np.eye(3), atol=1e-6):
                 continue
@@ -424,7 +427,7 @@ class TaskMotion:
             inside = (smap.lookup(Pk) <= 0.0) & ~touching  # in an occupied cell: as near as the cell size
             if not inside.any():
                 continue
-            d, _ = self._cut_tree.query(Pk[inside], k=1)  # those points, exactly
+            d, _ = self._cut_tree.query(Pk[inside], k=1, distance_upper_bound=2 * OBJECT_CLEARANCE)  # exactly
             bad = d < OBJECT_CLEARANCE
             if bad.any():
                 return [f"the carried object meets the scene at step {k} of {len(T_moves)} "

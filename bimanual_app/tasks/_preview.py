@@ -27,7 +27,7 @@ from bimanual_app.simulation import (
 
 from ._plan import TaskPlan
 
-__all__ = ["PreviewResult", "preview_plan", "CHECKS"]
+__all__ = ["PreviewResult", "preview_plan", "scene_bodies", "CHECKS"]
 
 # check name -> (arms that must hold, exclusive, rise m, hold s)
 CHECKS = {
@@ -71,13 +71,33 @@ class PreviewResult:
                 "world": "ground truth" if self.world_truth else "estimate", "warnings": self.warnings}
 
 
+def scene_bodies(inputs, ids: list[int] | None = None) -> tuple:
+    """``(table, shapes, warnings)`` of a task's inputs: the table plane (``table_from_segments``) and the
+    estimated bodies (``estimated_shapes``: object id -> BodyShape, and why objects are left out) of the
+    objects ``ids`` (default: every segmented object). Each is computed once and kept on the inputs: the
+    planner and each preview of a task use the same."""
+    cache = getattr(inputs, "_scene_bodies", None)
+    if cache is None:
+        cache = inputs._scene_bodies = {"table": table_from_segments(inputs.points, inputs.labels,
+                                                                     inputs.seg_extras), "objects": {}}
+    table, done = cache["table"], cache["objects"]
+    if ids is None:
+        ids = sorted(int(i) for i in np.unique(inputs.labels) if i >= 0)
+    todo = [int(i) for i in ids if int(i) not in done]
+    if todo:
+        est, warnings = estimated_shapes(inputs.points, inputs.labels, table, ids=todo)
+        for i in todo:
+            done[i] = (est.get(i), [w for w in warnings if w.startswith(f"object {i}:")])
+    shapes = {int(i): done[int(i)][0] for i in ids if done[int(i)][0] is not None}
+    return table, shapes, [w for i in ids for w in done[int(i)][1]]
+
+
 def preview_plan(plan: TaskPlan, inputs, robot, object_id: int, truth: bool = False, gui: bool = False,
                  record: bool = True, frame_size: tuple[int, int] = (320, 240), fps: float = 10.0,
                  log=None) -> PreviewResult:
     """Simulate ``plan`` with physics and judge it (see module notes). ``log(str)`` gets a line per phase."""
     t_wall = time.perf_counter()
-    table = table_from_segments(inputs.points, inputs.labels, inputs.seg_extras)
-    est, warnings = estimated_shapes(inputs.points, inputs.labels, table)
+    table, est, warnings = scene_bodies(inputs)
     T_b1_b2 = inputs.T_b1_b2
     true_shapes = None
     if truth:

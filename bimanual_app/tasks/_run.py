@@ -276,13 +276,11 @@ def _plan_candidate(opts, motion_o, c, k: int, q_start, width_start, pts_o, up):
 def _try_object(opts, inputs, robot, o: int, cands, rec: dict, s: _Search) -> None:
     """Plan and preview object ``o``'s candidates in order until one passes its preview (``s.chosen``) or
     ``MAX_PREVIEWS`` previews were made; records what was tried in ``s``."""
-    from bimanual_app.simulation import estimated_shapes
-
     from ._motion import PlanFailure, TaskMotion
-    from ._preview import preview_plan
+    from ._preview import preview_plan, scene_bodies
 
     table, q_start = s.table, s.q_start
-    shapes, warns = estimated_shapes(inputs.points, inputs.labels, table, ids=[o])
+    _, shapes, warns = scene_bodies(inputs, [o])
     rec["warnings"] += warns
     if o not in shapes:
         s.tried.append((o, PlanFailure("input", f"no collision body from its points ({'; '.join(warns)})"), 0))
@@ -337,12 +335,11 @@ def _plan_objects(opts, inputs, robot, cands, oid, q_start, width_start, rec: di
     that is only for judging); the first that passes is the task's plan. A failed preview moves on to the
     next candidate, up to MAX_PREVIEWS previews; if none passes, the first failed one is reported (and
     approved as 'fail')."""
-    from bimanual_app.simulation import table_from_segments
-
     from ._motion import BASE_RADIUS, robot_points_mask
+    from ._preview import scene_bodies
 
     t_start = time.perf_counter()
-    table = table_from_segments(inputs.points, inputs.labels, inputs.seg_extras)
+    table = scene_bodies(inputs)[0]
     robot_pts = robot_points_mask(inputs.points, inputs.labels, np.stack([np.zeros(3), inputs.T_b1_b2[:3, 3]]),
                                   table.normal, -table.d)
     if robot_pts.any():
