@@ -13,6 +13,20 @@ so no hand-picked rotation/translation weight is needed. The robust loss is scip
 growth for the rest, smooth and nearly convex so trust-region steps stay reliable; gross outlier views are
 removed explicitly beforehand (``_outliers``), the robust loss handles what is left.
 
+Positions are compared at a *pivot* point fixed in the camera frame (:func:`estimate_pivot`), not
+necessarily at the camera centre. An image pins the view of the scene far better than the camera's pose:
+turning the camera about a scene point it looks at (moving its centre on a sphere around that point)
+changes the image least, so a reconstruction's pose errors lie mostly along that direction. The camera
+centre's error is then ``l x dphi`` for a rotation error ``dphi`` about the point ``l`` (camera frame),
+strongly correlated with the rotation error, while the position of ``l`` itself is well determined.
+Whitening the centre's residual as independent of the rotation's would count one error twice and let the
+positions (through ``T_b_w``'s rotation) pull the hand-eye rotations; the residual of the pivot's position
+is close to independent of the rotation residual. The pivot is estimated once, after a first fit that
+compares camera centres, by regressing the views' leave-one-out centre residuals on their rotation
+residuals (re-estimating it from a fit that already compares pivot positions would confirm any pivot:
+that fit shapes the centre residuals into ``l x r``), and used only when they show the coupling clearly
+(an F test); with no coupling (errors about the camera centre) positions stay compared at the centre.
+
 Parameters are local perturbations around the starting point: ``R = exp(dphi) R0``, ``t = t0 + dt``,
 ``s = s0 (1 + ds)``; the covariance in these coordinates is what ``_uncertainty`` propagates.
 """
@@ -41,11 +55,17 @@ MIN_REDUNDANCY = 3.0
 
 @dataclass
 class AbsoluteState:
-    """A point of the absolute problem: per arm ``X`` (4, 4) and ``T_b_w`` (4, 4); shared ``scale``."""
+    """A point of the absolute problem: per arm ``X`` (4, 4) and ``T_b_w`` (4, 4); shared ``scale``.
+
+    ``pivot`` (3,) is part of the noise model, not an unknown: the point in the camera frame (m) whose
+    position the residuals compare (zeros: the camera centre; None: the camera centre, not yet estimated,
+    :func:`refine_absolute` estimates it; see :func:`estimate_pivot`).
+    """
 
     X: list
     W: list
     scale: float
+    pivot: np.ndarray | None = None
 
     def perturbed(self, x: np.ndarray) -> AbsoluteState:
         """Apply local coordinates ``x`` (12 K + 1,): per arm [dphi_X, dt_X, dphi_W, dt_W], then ds."""
@@ -54,14 +74,14 @@ class AbsoluteState:
             d = x[12 * m:12 * m + 12]
             X.append(make_T(so3_exp(d[0:3]) @ self.X[m][:3, :3], self.X[m][:3, 3] + d[3:6]))
             W.append(make_T(so3_exp(d[6:9]) @ self.W[m][:3, :3], self.W[m][:3, 3] + d[9:12]))
-        return AbsoluteState(X, W, self.scale * (1.0 + x[-1]))
+        return AbsoluteState(X, W, self.scale * (1.0 + x[-1]), self.pivot)
 
 
 def raw_residuals(T_b_e: list, T_w_c: list, st: AbsoluteState) -> tuple[list, list]:
-    """Per arm (N_m, 3) rotation residuals (rad) and (N_m, 3) position residuals (m)."""
+    """Per arm (N_m, 3) rotation residuals (rad) and (N_m, 3) position residuals of the pivot point (m)."""
     rot, trans = [], []
     for E, P, X, W in zip(T_b_e, T_w_c, st.X, st.W):
-        r, t = view_residuals(E, P, X, W, st.scale)
+        r, t = view_residuals(E, P, X, W, st.scale, st.pivot)
         rot.append(r)
         trans.append(t)
     return rot, trans
@@ -128,6 +148,96 @@ def variance_components(T_b_e: list, T_w_c: list, st: AbsoluteState, sigma: tupl
     return float(sig[0]), float(sig[1])
 
 
+#: the pivot is used when the regression explains the centre residuals at this significance (F test)
+PIVOT_SIGNIFICANCE = 1e-4
+#: a pivot farther than this from the camera (m) is no scene point a wrist camera looks at: not used
+MAX_PIVOT_M = 5.0
+#: residual degrees of freedom (6 N - parameters) below which the pivot is not estimated: with fewer, the
+#: three numbers of the regression would fit the little the parameters leave of the residuals
+PIVOT_MIN_REDUNDANCY = 20
+PIVOT_HUBER = 2.0  # Huber knee of the pivot regression, in robust spreads of a view's residual
+
+
+def estimate_pivot(T_b_e: list, T_w_c: list, st: AbsoluteState, sigma: tuple[float, float] | None = None
+                   ) -> np.ndarray:
+    """The point (3,) in the camera frame (m) about which the views' pose errors turn, or zeros.
+
+    Model per view: camera-centre residual ``t_c = l x r + u`` in the camera frame, ``r`` the rotation
+    residual, ``u`` the pivot's own position error, independent of ``r`` (module docstring); ``l`` is fitted
+    by :func:`pivot_regression` over all views. The regression uses each view's deleted residual (against
+    the fit without that view, :func:`_deleted_residuals`): the fit's own residuals are shaped by the fit
+    (``T_b_w``'s rotation moves a view's rotation and position residuals together; a view that pins
+    parameters alone keeps little of its error), so they understate a real coupling and show some where
+    there is none. ``l`` is returned only with at least ``PIVOT_MIN_REDUNDANCY`` residual degrees of
+    freedom, when it explains the centre residuals significantly (``PIVOT_SIGNIFICANCE``) and lies within
+    ``MAX_PIVOT_M``; otherwise zeros (the camera centre).
+
+    Args:
+        T_b_e, T_w_c: per arm (N_m, 4, 4) inputs; st: the fitted state (camera centres compared: its own
+            pivot is not used); sigma: (rotation rad, position m) noise of that fit, None: estimated.
+    """
+    st0 = AbsoluteState(st.X, st.W, st.scale)
+    n_par = 12 * len(st.X) + 1
+    if 6 * sum(len(e) for e in T_b_e) - n_par < PIVOT_MIN_REDUNDANCY:
+        return np.zeros(3)
+    if sigma is None:
+        sigma = estimate_noise(*raw_residuals(T_b_e, T_w_c, st0), n_params=n_par)
+    ell, p, _ = pivot_regression(*_deleted_residuals(T_b_e, T_w_c, st0, sigma))
+    if p > PIVOT_SIGNIFICANCE or np.linalg.norm(ell) > MAX_PIVOT_M:
+        return np.zeros(3)
+    return ell
+
+
+def _deleted_residuals(T_b_e: list, T_w_c: list, st: AbsoluteState, sigma: tuple[float, float]
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Each view's residual against the fit without it, to first order ``(I - H_ii)^-1 r_i`` (whitened, the
+    eigenvalues of ``I - H_ii`` clipped at 0.05 as in :func:`_quad`): (N, 3) rotation (rad, camera frame)
+    and (N, 3) position (m, rotated into the camera frame)."""
+    n_views = [len(e) for e in T_b_e]
+    r = whitened(T_b_e, T_w_c, st, sigma)
+    J = jacobian(T_b_e, T_w_c, st, sigma)
+    A = np.linalg.pinv(J.T @ J)
+    d = np.zeros((sum(n_views), 6))
+    for _, _, sl in _view_blocks(n_views):
+        Ji = J[sl]
+        w, V = np.linalg.eigh(np.eye(6) - Ji @ A @ Ji.T)
+        d[sl.start // 6] = V @ ((V.T @ r[sl]) / np.maximum(w, 0.05))
+    R_c = np.concatenate([(E @ X)[:, :3, :3] for E, X in zip(T_b_e, st.X)])
+    return d[:, :3] * sigma[0], np.einsum("nji,nj->ni", R_c, d[:, 3:] * sigma[1])
+
+
+def pivot_regression(r: np.ndarray, t: np.ndarray, iterations: int = 5) -> tuple[np.ndarray, float, float]:
+    """Robust fit of ``t = l x r`` over views: rotation residuals r (N, 3) (rad, camera frame) and camera-centre
+    residuals t (N, 3) (m, camera frame).
+
+    Least squares reweighted per view: Huber on the fit's residual, and bounded leverage (Mallows): a
+    view's rotation residual is the regressor, so a gross one would set ``l`` on its own however badly it
+    fits; its weight times ``|r|^2`` is capped at ``(PIVOT_HUBER x typical |r|)^2``.
+
+    Returns:
+        ``(l (3,), p-value of the F test of l = 0 (3 and 3 N - 3 dof), fraction of sum |t|^2 explained)``,
+        both with the final weights.
+    """
+    from scipy.special import fdtrc  # (scipy.stats would add 0.6 s to the CLI's start-up)
+
+    n = len(r)
+    A = -skew(r)  # l x r = -[r]x l
+    lev = np.linalg.norm(r, axis=1) / max(float(np.sqrt(np.median(np.sum(r ** 2, axis=1)))), 1e-15)
+    w_x = np.minimum(1.0, (PIVOT_HUBER / np.maximum(lev, 1e-12)) ** 2)
+    w = w_x
+    for _ in range(iterations):
+        sw = np.sqrt(w)[:, None, None]
+        ell = np.linalg.lstsq((sw * A).reshape(-1, 3), (sw[..., 0] * t).ravel(), rcond=None)[0]
+        e = np.linalg.norm(t - A @ ell, axis=1)
+        z = e / max(float(np.sqrt(np.median(e ** 2))), 1e-15)
+        w = w_x * np.minimum(1.0, PIVOT_HUBER / np.maximum(z, 1e-12))
+    rss0 = float(np.sum(w * np.sum(t ** 2, axis=1)))
+    rss1 = float(np.sum(w * np.sum((t - A @ ell) ** 2, axis=1)))
+    dof = 3 * n - 3
+    F = (rss0 - rss1) / 3.0 / max(rss1 / dof, 1e-300)
+    return ell, float(fdtrc(3, dof, max(F, 0.0))), (rss0 - rss1) / max(rss0, 1e-300)
+
+
 def whitened(T_b_e: list, T_w_c: list, st: AbsoluteState, sigma: tuple[float, float]) -> np.ndarray:
     """Stacked residuals divided by the noise: (6 * sum N_m,)."""
     rot, trans = raw_residuals(T_b_e, T_w_c, st)
@@ -163,6 +273,7 @@ def jacobian(T_b_e: list, T_w_c: list, base: AbsoluteState, sigma: tuple[float, 
     n = 12 * K + 1
     x = np.zeros(n) if x is None else x
     st = base.perturbed(x)
+    piv = np.zeros(3) if st.pivot is None else st.pivot
     blocks = []
     for m, (E, P) in enumerate(zip(T_b_e, T_w_c)):
         N = len(E)
@@ -179,11 +290,12 @@ def jacobian(T_b_e: list, T_w_c: list, base: AbsoluteState, sigma: tuple[float, 
         # rotation residual: log(D); dphi_W -> Jr^-1 R_rec^T ; dphi_X -> -Jr^-1 D^T R_X^T
         J[:, :3, 12 * m + 6:12 * m + 9] = Jri @ np.swapaxes(R_rec, 1, 2) @ JlW / sigma[0]
         J[:, :3, 12 * m:12 * m + 3] = -(Jri @ np.swapaxes(D, 1, 2) @ X[:3, :3].T) @ JlX / sigma[0]
-        # position residual: R_W s t_P + t_W - R_E t_X - t_E
+        # position residual (pivot l): R_W s t_P + t_W + R_rec l - R_E t_X - t_E - R_kin l
         p_rec = (P[:, :3, 3] * st.scale) @ W[:3, :3].T
         J[:, 3:, 12 * m + 3:12 * m + 6] = -R_E / sigma[1]
         J[:, 3:, 12 * m + 9:12 * m + 12] = np.eye(3) / sigma[1]
-        J[:, 3:, 12 * m + 6:12 * m + 9] = -skew(p_rec) @ JlW / sigma[1]
+        J[:, 3:, 12 * m + 6:12 * m + 9] = -skew(p_rec + R_rec @ piv) @ JlW / sigma[1]
+        J[:, 3:, 12 * m:12 * m + 3] = R_E @ skew(X[:3, :3] @ piv) @ JlX / sigma[1]
         J[:, 3:, -1] = p_rec / (1.0 + x[-1]) / sigma[1]
         blocks.append(J.reshape(6 * N, n))
     return np.concatenate(blocks)
@@ -241,7 +353,9 @@ def refine_absolute(T_b_e: list, T_w_c: list, start: AbsoluteState, sigma: tuple
         f_scale: robust-loss knee in units of sigma.
 
     Returns:
-        ``(state, info)``, info with ``sigma``, ``cost``, ``nfev``, ``passes``.
+        ``(state, info)``, info with ``sigma``, ``cost``, ``nfev``, ``passes``. With the noise estimated and
+        the start's pivot None, the pivot is estimated after the first pass (:func:`estimate_pivot`, from
+        that fit of the camera centres) and kept for the passes after it; otherwise the start's is kept.
     """
     n = 12 * len(start.X) + 1
     st = start
@@ -249,7 +363,8 @@ def refine_absolute(T_b_e: list, T_w_c: list, start: AbsoluteState, sigma: tuple
     if est:
         sigma = estimate_noise(*raw_residuals(T_b_e, T_w_c, st), n_params=n)
     info = {"nfev": 0, "passes": 0}
-    for _ in range(max_passes):
+    extra = 0  # one more pass when a pivot was found after the first
+    while info["passes"] < max_passes + extra:
         sig = sigma
 
         def fun(x, st=st, sig=sig):
@@ -266,8 +381,13 @@ def refine_absolute(T_b_e: list, T_w_c: list, start: AbsoluteState, sigma: tuple
         info["cost"] = float(res.cost)
         if not est:
             break
+        moved = 0.0
+        if st.pivot is None:
+            st = AbsoluteState(st.X, st.W, st.scale, estimate_pivot(T_b_e, T_w_c, st, sig))
+            moved = float(np.linalg.norm(st.pivot))
+            extra = int(moved > 0)
         new = variance_components(T_b_e, T_w_c, st, sigma)
-        change = max(abs(np.log(new[0] / sigma[0])), abs(np.log(new[1] / sigma[1])))
+        change = max(abs(np.log(new[0] / sigma[0])), abs(np.log(new[1] / sigma[1])), moved * new[0] / new[1])
         sigma = new
         if change < 0.1:
             break
@@ -350,5 +470,5 @@ def deleted_score(T_b_e: list, T_w_c: list, st: AbsoluteState, sigma: tuple[floa
     return float(np.sqrt(_quad(np.eye(6) + Jv @ C @ Jv.T, rv, floor=1.0) / kappa ** 2))
 
 
-__all__ = ["AbsoluteState", "refine_absolute", "covariance", "estimate_noise", "raw_residuals", "studentized_scores",
-           "deleted_score"]
+__all__ = ["AbsoluteState", "refine_absolute", "estimate_pivot", "covariance", "estimate_noise", "raw_residuals",
+           "studentized_scores", "deleted_score"]

@@ -233,7 +233,8 @@ def _estimate_jointly(scene, result: CalibrationResult, options: CalibrationOpti
     P = scene.reconstruction.T_w_c[rows]
     start = JointState(result.T_e1_c1, result.T_e2_c2, result.scale, result.T_b1_b2, result.T_b1_w, np.zeros(len(rows)))
     noise = (np.radians(result.noise["rotation_deg"]), result.noise["translation_mm"] * 1e-3)
-    fit = estimate_jointly(views, arms, E, P, start, noise, progress)
+    pivot = np.asarray(result.noise.get("pivot_m", np.zeros(3)), dtype=np.float64)  # the pose-only noise model's
+    fit = estimate_jointly(views, arms, E, P, start, noise, progress, pivot)
     report = _fit_report(scene, fit, rows, views)
     for v in fit.dropped_views:
         result.warnings.append(f"the point map of {report['depth_factors'][v]['image']} contradicts its own pose "

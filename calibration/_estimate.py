@@ -102,7 +102,8 @@ def _x_scale(V: int) -> np.ndarray:
 
 def _terms(st, views, pairs, arms, E, P, noise) -> list[CostTerm]:
     """The cost terms at ``st``: kinematic loop, point maps, depth-factor prior."""
-    return [jm.pose_term(st, arms, E, P, noise["pose"]), jm.map_term(st, views, pairs, noise["map"], noise["pair"]),
+    return [jm.pose_term(st, arms, E, P, noise["pose"], noise.get("pivot")),
+            jm.map_term(st, views, pairs, noise["map"], noise["pair"]),
             jm.depth_prior_term(st, noise["kappa"], arms)]
 
 
@@ -211,7 +212,7 @@ def _fit_depth_only(st, views, pairs, arms, E, P, noise):
 
 
 def estimate_jointly(views: list, arms: np.ndarray, E: np.ndarray, P: np.ndarray, start, pose_noise: tuple,
-                     progress=None) -> JointFit:
+                     progress=None, pivot: np.ndarray | None = None) -> JointFit:
     """The joint weighted estimate from the pose-only ``start`` (:class:`JointState`, kappa zero).
 
     Args:
@@ -219,13 +220,26 @@ def estimate_jointly(views: list, arms: np.ndarray, E: np.ndarray, P: np.ndarray
         arms: (V,) 1 or 2; E: (V, 4, 4) ``T_b_e``; P: (V, 4, 4) the reconstruction's ``T_w_c``.
         pose_noise: the pose-only solve's (rotation rad, position m) noise per view.
         progress: optional callable(str), one line per round.
+        pivot: (3,) the pose-only solve's pivot (camera frame, m): the loop compares that point's positions,
+            as the pose-only noise model does; None or zeros: the camera centres.
     """
+    from threadpoolctl import threadpool_limits
+
+    # its dense matrices are small (25 + V columns): BLAS threads cost more to start and synchronise than
+    # they give (many times more on a busy machine)
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _estimate(views, arms, E, P, start, pose_noise, progress, pivot)
+
+
+def _estimate(views, arms, E, P, start, pose_noise, progress, pivot=None) -> JointFit:
     if min(int(np.sum(arms == 1)), int(np.sum(arms == 2))) < 2:
         return JointFit(start, False, f"needs 2 or more point maps per arm, has {int(np.sum(arms == 1))} / "
                                       f"{int(np.sum(arms == 2))}")
     samples, targets = _sample(views, POINTS_PER_VIEW), _sample(views, TARGETS_PER_VIEW, 1)
     active = ~contradicting_views(views, P, start, samples, targets)
-    st, rounds, noise, pairs = start, [], {"pose": tuple(pose_noise), "kappa": jm.KAPPA_SIGMA, "pair": PAIR_SIGMA0}, None
+    st, rounds, pairs = start, [], None
+    noise = {"pose": tuple(pose_noise), "kappa": jm.KAPPA_SIGMA, "pair": PAIR_SIGMA0,
+             "pivot": None if pivot is None or not np.any(pivot) else np.asarray(pivot, dtype=np.float64)}
     schedule = list(RADII) + [RADII[-1]] * MAX_FINE_ROUNDS
     for k, radius in enumerate(schedule):
         pairs = _pairs_at(views, st, samples, targets, radius, active)

@@ -38,17 +38,19 @@ def held_out_cost(J: np.ndarray, r: np.ndarray, view_of_row: np.ndarray, fitted_
     V = int(vo.max()) + 1
     out = np.zeros(V)
     shift = np.zeros((V, J.shape[1]))
+    # each block's normal matrix and gradient over all its rows, once; a view's rows are taken out of them
+    blocks = [(rows, cols, J[np.ix_(rows, cols)], r[rows]) for rows, cols in fitted_by]
+    blocks = [(rows, cols, Jb, rb, Jb.T @ Jb, Jb.T @ rb) for rows, cols, Jb, rb in blocks]
     for v in range(V):
         mine = np.any(vo == v, axis=1)
         pred = r[mine].copy()
-        for rows, cols in fitted_by:
-            Jb = J[np.ix_(rows, cols)]
+        for rows, cols, Jb, rb, Hb, gb in blocks:
             held = mine[rows]
             if not held.any():
                 continue
-            Jh, rh = Jb[held], r[rows][held]
-            H = Jb.T @ Jb - Jh.T @ Jh
-            g = Jb.T @ r[rows] - Jh.T @ rh
+            Jh, rh = Jb[held], rb[held]
+            H = Hb - Jh.T @ Jh
+            g = gb - Jh.T @ rh
             d = np.linalg.lstsq(H, -g, rcond=1e-12)[0]
             pred += J[np.ix_(mine, cols)] @ d
             shift[v, cols] += d

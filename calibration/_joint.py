@@ -30,7 +30,8 @@ import numpy as np
 from bimanual_app.transforms import inv_T, make_T, so3_exp
 
 from ._absolute import SIGMA_FLOOR_ROT, SIGMA_FLOOR_TRANS
-from ._pointmaps import map_jacobian, map_residuals, unpack_corrections
+from ._pointmaps import _cross, _dot3, unpack_corrections, view_camera_poses
+from ._summary import pair_summary, view_twists
 from ._terms import CostTerm
 
 __all__ = ["JointState", "N_CAL", "perturb", "pose_term", "map_term", "depth_prior_term", "view_map_noise"]
@@ -78,40 +79,57 @@ def perturb(st: JointState, theta: np.ndarray) -> JointState:
     return JointState(T1, T2, s, Tb, W1, st.kappa + theta[N_CAL:])
 
 
-def _pose_residuals(states: list[JointState], arms: np.ndarray, E: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """(S, 6 V) for each state, per view [rotation (rad, camera frame), position (m, base frame)] of the
-    kinematic loop, views in input order. All states in one batch (one rotation log for all)."""
+def _perturbed(st: JointState, thetas: np.ndarray) -> tuple:
+    """``st`` moved by each row of ``thetas`` (S, 25 + V) as :func:`perturb` does, all rows at once (one rotation
+    exponential for all): ``(T_e1_c1, T_e2_c2, T_b1_b2, T_b1_w)`` (S, 4, 4) each and the scales (S,)."""
+    th = np.atleast_2d(thetas)
+    R = so3_exp(th[:, [0, 1, 2, 6, 7, 8, 13, 14, 15, 19, 20, 21]].reshape(-1, 4, 3))  # (S, 4, 3, 3)
+    D = make_T(R, th[:, [3, 4, 5, 9, 10, 11, 16, 17, 18, 22, 23, 24]].reshape(-1, 4, 3))
+    return (st.T_e1_c1 @ D[:, 0], st.T_e2_c2 @ D[:, 1], D[:, 2] @ st.T_b1_b2, D[:, 3] @ st.T_b1_w,
+            st.scale * np.exp(th[:, 12]))
+
+
+def _pose_residuals(st: JointState, thetas: np.ndarray, arms: np.ndarray, E: np.ndarray, P: np.ndarray,
+                    pivot: np.ndarray | None = None) -> np.ndarray:
+    """(S, 6 V) for ``st`` moved by each row of ``thetas`` (S, 25 + V), per view [rotation (rad, camera frame),
+    position (m, base frame)] of the kinematic loop, views in input order. All in one batch.
+
+    ``pivot`` (3,): the point of the camera frame (m) whose positions are compared (the pose-only solve's
+    noise model, ``_absolute.estimate_pivot``); None compares the camera centres."""
     from bimanual_app.transforms import so3_log
 
-    Ckin, Crec = [], []
-    sP = [np.concatenate([P[:, :3, :3], st.scale * P[:, :3, 3:]], axis=2) for st in states]  # (V, 3, 4)
-    for st, Ps in zip(states, sP):
-        X = np.where((arms == 1)[:, None, None], st.T_e1_c1, st.T_e2_c2)
-        W = np.where((arms == 1)[:, None, None], st.T_b1_w, inv_T(st.T_b1_b2) @ st.T_b1_w)
-        Ckin.append(E @ X)
-        Crec.append(W[:, :3, :3] @ Ps + np.concatenate([np.zeros((len(arms), 3, 3)), W[:, :3, 3:]], axis=2))
-    Ckin, Crec = np.stack(Ckin), np.stack(Crec)  # (S, V, 4, 4), (S, V, 3, 4)
-    rot = so3_log(np.swapaxes(Ckin[..., :3, :3], -1, -2) @ Crec[..., :3, :3])
-    trans = Crec[..., :3, 3] - Ckin[..., :3, 3]
-    return np.concatenate([rot, trans], axis=-1).reshape(len(states), -1)
+    T1, T2, Tb, W1, s = _perturbed(st, thetas)
+    one = (arms == 1)[None, :, None, None]
+    X = np.where(one, T1[:, None], T2[:, None])  # (S, V, 4, 4)
+    W = np.where(one, W1[:, None], (inv_T(Tb) @ W1)[:, None])
+    Ckin = E[None] @ X
+    Rrec = W[..., :3, :3] @ P[None, :, :3, :3]
+    trec = np.einsum("svij,svj->svi", W[..., :3, :3], s[:, None, None] * P[None, :, :3, 3]) + W[..., :3, 3]
+    rot = so3_log(np.swapaxes(Ckin[..., :3, :3], -1, -2) @ Rrec)
+    trans = trec - Ckin[..., :3, 3]
+    if pivot is not None:
+        trans = trans + (Rrec - Ckin[..., :3, :3]) @ np.asarray(pivot, dtype=np.float64)
+    return np.concatenate([rot, trans], axis=-1).reshape(len(s), -1)
 
 
-def pose_term(st: JointState, arms: np.ndarray, E: np.ndarray, P: np.ndarray, sigma: tuple[float, float]) -> CostTerm:
+def pose_term(st: JointState, arms: np.ndarray, E: np.ndarray, P: np.ndarray, sigma: tuple[float, float],
+              pivot: np.ndarray | None = None) -> CostTerm:
     """The kinematic loop of every view.
 
     Args:
         arms: (V,) 1 or 2; E: (V, 4, 4) end-effector poses ``T_b_e``; P: (V, 4, 4) reconstruction poses ``T_w_c``.
         sigma: (rotation rad, position m) starting noise levels.
+        pivot: (3,) camera-frame point (m) whose positions are compared, or None for the camera centres.
     """
     V = len(arms)
     n = N_CAL + V
     steps = 1e-7 * np.eye(n)[:N_CAL]
 
     def res(theta):
-        return _pose_residuals([perturb(st, theta)], arms, E, P)[0]
+        return _pose_residuals(st, theta, arms, E, P, pivot)[0]
 
     def jac(theta):  # 25 columns by forward differences, all in one batch: 6 V residuals are cheap
-        R = _pose_residuals([perturb(st, theta + d) for d in np.vstack([np.zeros(n), steps])], arms, E, P)
+        R = _pose_residuals(st, theta + np.vstack([np.zeros(n), steps]), arms, E, P, pivot)
         J = np.zeros((6 * V, n))
         J[:, :N_CAL] = ((R[1:] - R[0]) / 1e-7).T
         return J
@@ -139,12 +157,21 @@ def _relative_motion_basis(Xa, nb, ta, tb, Xb, a_is_lo) -> np.ndarray:
     motion (rotation, translation) of the lower-numbered view and the two views' log depth factors."""
     sign = np.where(a_is_lo, 1.0, -1.0)[:, None]
     G = np.empty((len(Xa), 8))
-    G[:, 0:3] = sign * np.cross(Xa, nb)
+    G[:, 0:3] = sign * _cross(Xa, nb)
     G[:, 3:6] = sign * nb
-    da, db = np.sum(nb * (Xa - ta), axis=1), -np.sum(nb * (Xb - tb), axis=1)
+    da, db = _dot3(nb, Xa - ta), -_dot3(nb, Xb - tb)
     G[:, 6] = np.where(a_is_lo, da, db)
     G[:, 7] = np.where(a_is_lo, db, da)
     return G
+
+
+def _orthonormal_basis(G: np.ndarray) -> np.ndarray:
+    """(K, 8) the Q of the QR decomposition of ``G`` (K, 8), as ``np.linalg.qr`` gives it, by LAPACK directly
+    (numpy's wrapper costs as much as the decomposition at this size, and a term makes hundreds)."""
+    from scipy.linalg import lapack
+
+    qr, tau, _, _ = lapack.dgeqrf(G)
+    return lapack.dorgqr(qr, tau)[0]
 
 
 def map_term(st: JointState, views: list, pairs, sigma_v: np.ndarray, sigma_pair: float) -> CostTerm:
@@ -166,29 +193,31 @@ def map_term(st: JointState, views: list, pairs, sigma_v: np.ndarray, sigma_pair
 
     V = len(views)
     _, t, _, Xa, Xb, Nb = _geometry(np.zeros(19), st.kappa, views, st.calibration, pairs)
-    raw0 = np.sum((Xa - Xb) * Nb, axis=1)
+    raw0 = _dot3(Xa - Xb, Nb)
     w = 1.0 / np.asarray(sigma_v, dtype=np.float64)[pairs.va]
     lo, hi = np.minimum(pairs.va, pairs.vb), np.maximum(pairs.va, pairs.vb)
     z = np.abs(raw0) * w
     ok = z < TRIM
     w = w * np.sqrt(np.minimum(1.0, HUBER_K / np.maximum(z, 1e-12)))  # Huber weights at the round's start
     G = _relative_motion_basis(Xa, Nb, t[pairs.va], t[pairs.vb], Xb, pairs.va == lo) * w[:, None]
-    blocks = []
-    for key in np.unique((lo * V + hi)[ok]):
-        idx = np.flatnonzero(ok & (lo * V + hi == key))
-        if len(idx) >= 30:
-            blocks.append((idx, np.linalg.qr(G[idx])[0]))
-    S = _summary_matrix(blocks, len(raw0))
+    rows = np.flatnonzero(ok)
+    rows = rows[np.argsort((lo * V + hi)[rows], kind="stable")]  # by view pair, each pair's rows in order
+    _, first, count = np.unique((lo * V + hi)[rows], return_index=True, return_counts=True)
+    blocks = [(idx, _orthonormal_basis(G[idx])) for idx in (rows[f:f + c] for f, c in zip(first, count)) if len(idx) >= 30]
+    summary = pair_summary(blocks, pairs.va, pairs.vb, pairs.design(), w)
+    arms = np.array([v.arm for v in views])
 
-    def res(theta):
-        return S @ (w * map_residuals(theta[:19], st.kappa + theta[N_CAL:], views, st.calibration, pairs))
+    def cameras(theta):
+        T1, T2, s, Tb = unpack_corrections(theta[:19], *st.calibration)
+        Tc = view_camera_poses(views, T1, T2, Tb)
+        return Tc[:, :3, :3], Tc[:, :3, 3], s * np.exp(st.kappa + theta[N_CAL:])
+
+    def res(theta):  # = S (w * map_residuals), S the blocks' Q^T, in closed form (calibration._summary)
+        return summary.values(*cameras(theta))
 
     def jac(theta):
-        J19, Jk = map_jacobian(theta[:19], st.kappa + theta[N_CAL:], views, st.calibration, pairs)
-        out = np.zeros((S.shape[0], N_CAL + V))
-        out[:, :19] = S @ (w[:, None] * J19)
-        out[:, N_CAL:] = S @ (w[:, None] * Jk)
-        return out
+        R, t, s = cameras(theta)
+        return summary.jacobian(R, t, s, *view_twists(R, t, arms, N_CAL + V, N_CAL))
 
     who = np.concatenate([np.tile([[idx[0]]], (Q.shape[1], 1)) for idx, Q in blocks]).ravel() if blocks else np.zeros(0, int)
 
@@ -197,18 +226,6 @@ def map_term(st: JointState, views: list, pairs, sigma_v: np.ndarray, sigma_pair
                     _update_pair_noise, np.stack([lo[who], hi[who]], axis=1) if m else np.zeros((0, 2), int),
                     {"sigma_view_m": np.asarray(sigma_v, dtype=np.float64), "pairs": pairs, "blocks": len(blocks),
                      "points": int(sum(len(i) for i, _ in blocks)), "raw": raw0})
-
-
-def _summary_matrix(blocks: list, n: int):
-    """Sparse (8 B, n): row block b holds ``Q_b^T`` on the columns of its pair's distances."""
-    from scipy.sparse import csr_matrix
-
-    if not blocks:
-        return csr_matrix((0, n))
-    rows = np.concatenate([np.repeat(np.arange(8 * b, 8 * b + 8), len(idx)) for b, (idx, _) in enumerate(blocks)])
-    cols = np.concatenate([np.tile(idx, 8) for idx, _ in blocks])
-    vals = np.concatenate([Q.T.ravel() for _, Q in blocks])
-    return csr_matrix((vals, (rows, cols)), shape=(8 * len(blocks), n))
 
 
 def view_map_noise(raw: np.ndarray, va: np.ndarray, V: int) -> np.ndarray:

@@ -11,6 +11,9 @@ import numpy as np
 from ._closed_form import scaled
 from ._files import atomic_file
 
+#: zlib level 1: a third of the default's encoding time for a slightly larger file (figures, not archives)
+PNG_OPTIONS = {"compress_level": 1}
+
 
 class _Segments:
     """Collects 3D line segments and draws them as one Line3DCollection (one artist: fast)."""
@@ -164,7 +167,7 @@ def save_calibration_figure(path: Path, result, T_b1_e: np.ndarray, T_w_c1: np.n
     fig.suptitle("\n".join(lines), fontsize=10)
     fig.subplots_adjust(left=0.02, right=0.98, bottom=0.08, top=0.86, wspace=0.12)
     with atomic_file(path) as tmp:
-        fig.savefig(tmp, dpi=100)
+        fig.savefig(tmp, dpi=100, pil_kwargs=PNG_OPTIONS)
     plt.close(fig)
 
 
@@ -201,7 +204,7 @@ def save_point_map_figure(path: Path, before_m: np.ndarray, after_m: np.ndarray,
     r.grid(alpha=0.3)
     verdict = "applied" if report.get("accepted") else f"NOT applied: {report.get('reason', '')}"
     fig.suptitle((title + "\n" if title else "") + f"views placed by the kinematics; refinement {verdict}", fontsize=10)
-    fig.tight_layout()
+    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.13, top=0.83, wspace=0.22)  # fixed: tight_layout costs a draw
     with atomic_file(path) as tmp:
-        fig.savefig(tmp, dpi=100)
+        fig.savefig(tmp, dpi=100, pil_kwargs=PNG_OPTIONS)
     plt.close(fig)

@@ -75,11 +75,22 @@ def grid_normals(points_c: np.ndarray) -> np.ndarray:
     dy = np.full_like(P, np.nan)
     dx[:, 1:-1] = P[:, 2:] - P[:, :-2]
     dy[1:-1] = P[2:] - P[:-2]
-    n = np.cross(dx, dy)
+    n = _cross(dx.reshape(-1, 3), dy.reshape(-1, 3)).reshape(P.shape)
     with np.errstate(invalid="ignore", divide="ignore"):
-        n = n / np.linalg.norm(n, axis=-1, keepdims=True)
-        n = -n * np.sign(np.sum(n * P, axis=-1, keepdims=True))
+        n = n / np.sqrt(_dot3(n, n))[..., None]
+        n = -n * np.sign(_dot3(n, P))[..., None]
     return n
+
+
+def _dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``sum(a * b, axis=-1)`` of (..., 3) arrays, summed in the same order, without a reduction over an axis
+    of 3 (numpy's is slow there)."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
+def _finite3(a: np.ndarray) -> np.ndarray:
+    """``np.all(np.isfinite(a), axis=-1)`` of a (..., 3) array."""
+    return np.isfinite(a[..., 0]) & np.isfinite(a[..., 1]) & np.isfinite(a[..., 2])
 
 
 def camera_frame_views(pts3d_w: np.ndarray, T_w_c: np.ndarray, keep: np.ndarray, arms: np.ndarray,
@@ -100,10 +111,12 @@ def camera_frame_views(pts3d_w: np.ndarray, T_w_c: np.ndarray, keep: np.ndarray,
     for v in range(V):
         Pc = (P[v].astype(np.float64) - T[v, :3, 3]) @ T[v, :3, :3]
         N = grid_normals(Pc)
-        ok = keep[v] & np.all(np.isfinite(Pc), axis=-1) & np.all(np.isfinite(N), axis=-1) & (Pc[..., 2] > 0)
+        finite = _finite3(Pc)
+        with np.errstate(invalid="ignore"):
+            ok = keep[v] & finite & _finite3(N) & (Pc[..., 2] > 0)
         index = np.full(ok.shape, -1, dtype=np.int64)
         index[ok] = np.arange(int(ok.sum()))
-        finite = np.all(np.isfinite(Pc), axis=-1) & (np.nan_to_num(Pc[..., 2], nan=-1.0) > 0)
+        finite &= np.nan_to_num(Pc[..., 2], nan=-1.0) > 0
         out.append(PointMapView(int(arms[v]), E[v], Pc[ok], N[ok], index, pointmap_intrinsics(Pc, finite)))
     return out
 
@@ -146,29 +159,54 @@ def _partner_views(views, Tc: np.ndarray, per_arm: int = PARTNERS_PER_ARM) -> li
     return out
 
 
-def _projective_partners(views, a: int, b: int, Pa, Tc, sv, radius):
-    """Indices into view ``b``'s points of the partners of the placed samples ``Pa`` (K, 3) of view ``a`` (-1:
-    none): the point at the pixel where each projects in ``b`` (projective data association, as in
-    KinectFusion's ICP), no search, as every view is an organised map with a fitted pinhole."""
-    u = views[b]
-    R, t = Tc[b, :3, :3], Tc[b, :3, 3]
-    c = (Pa - t) @ R / sv[b]  # in camera b, its own units
-    z = c[:, 2]
+class _Stacked:
+    """Every view's points, normals and pixel index in flat arrays (view ``v`` at ``off[v]``), so that the partners
+    of one view's samples in all its partner views are looked up in one go."""
+
+    def __init__(self, views):
+        self.off = np.r_[0, np.cumsum([len(v.points_c) for v in views])]
+        self.points = np.concatenate([v.points_c for v in views])
+        self.normals = np.concatenate([v.normals_c for v in views])
+        if all(v.projective for v in views):
+            shapes = np.array([v.index.shape for v in views])
+            self.H, self.W = shapes[:, 0], shapes[:, 1]
+            self.pix_off = np.r_[0, np.cumsum(self.H * self.W)]
+            self.index = np.concatenate([v.index.ravel() for v in views])
+            self.intrinsics = np.array([v.intrinsics for v in views], dtype=np.float64)
+
+
+def _projective_partners(stack: _Stacked, B: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """(..., K) indices into each partner view ``B`` (...)'s points of the partners of samples ``c`` (..., K, 3),
+    placed in each partner's camera frame (its own units) (-1: none): the point at the pixel where each projects
+    (projective data association, as in KinectFusion's ICP), no search, as every view is an organised map with a
+    fitted pinhole."""
+    z = c[..., 2]
     front = z > 1e-9
     zs = np.where(front, z, 1.0)
-    fx, fy, cx, cy = u.intrinsics
-    col, row = np.round(fx * c[:, 0] / zs + cx), np.round(fy * c[:, 1] / zs + cy)
-    H, W = u.index.shape
+    fx, fy, cx, cy = (stack.intrinsics[B, i][..., None] for i in range(4))
+    col, row = np.round(fx * c[..., 0] / zs + cx), np.round(fy * c[..., 1] / zs + cy)
+    H, W = stack.H[B][..., None], stack.W[B][..., None]
     inside = front & (col >= 0) & (col < W) & (row >= 0) & (row < H)
-    j = np.full(len(Pa), -1, dtype=np.int64)
-    j[inside] = u.index[row[inside].astype(np.int64), col[inside].astype(np.int64)]
-    return j
+    pix = stack.pix_off[B][..., None] + np.where(inside, row * W + col, 0).astype(np.int64)
+    return np.where(inside, stack.index[pix], -1)
 
 
 def _nearest_partners(trees, targets, b: int, Pa, radius):
-    """As :func:`_projective_partners`, by nearest neighbour among view ``b``'s placed target points."""
+    """As :func:`_projective_partners` for one partner view ``b``, by nearest neighbour among its placed target
+    points."""
+    if not len(targets[b]):  # a view without points has no partners to give
+        return np.full(len(Pa), -1)
     d, j = trees[b].query(Pa, distance_upper_bound=radius)
     return np.where(np.isfinite(d), targets[b][np.minimum(j, len(targets[b]) - 1)], -1)
+
+
+def _padded(rows: list) -> tuple[np.ndarray, np.ndarray]:
+    """``(X (n, L) int, used (n, L) bool)``: int arrays of different lengths, padded with zeros to the longest."""
+    L = max((len(r) for r in rows), default=0)
+    X = np.zeros((len(rows), L), dtype=int)
+    used = np.arange(L) < np.array([len(r) for r in rows])[:, None]
+    X[used] = np.concatenate(rows) if rows else []
+    return X, used
 
 
 def find_pairs(views, samples, targets, Tc: np.ndarray, sv: np.ndarray, Tb: np.ndarray, radius: float):
@@ -182,48 +220,38 @@ def find_pairs(views, samples, targets, Tc: np.ndarray, sv: np.ndarray, Tb: np.n
         :class:`MapPairs` or None when no pair is found.
     """
     projective = all(v.projective for v in views)
+    stack = _Stacked(views)
     trees = None
     if not projective:
         from scipy.spatial import cKDTree
 
         trees = [cKDTree(sv[k] * v.points_c[g] @ T[:3, :3].T + T[:3, 3]) for k, (v, T, g) in
                  enumerate(zip(views, Tc, targets))]
-    va, ia, vb, ib = [], [], [], []
-    for a, (v, partners) in enumerate(zip(views, _partner_views(views, Tc))):
-        s = samples[a]
-        Pa = sv[a] * v.points_c[s] @ Tc[a, :3, :3].T + Tc[a, :3, 3]
-        Na = v.normals_c[s] @ Tc[a, :3, :3].T
-        free = ~_robot_column(Pa, Tb)
-        for b in partners:
-            j = (_projective_partners(views, a, b, Pa, Tc, sv, radius) if projective
-                 else _nearest_partners(trees, targets, b, Pa, radius))
-            hit = np.flatnonzero((j >= 0) & free)
-            if not len(hit):
-                continue
-            u = views[b]
-            Xb = sv[b] * u.points_c[j[hit]] @ Tc[b, :3, :3].T + Tc[b, :3, 3]
-            Nb = u.normals_c[j[hit]] @ Tc[b, :3, :3].T
-            ok = (np.linalg.norm(Pa[hit] - Xb, axis=1) < radius) & (np.abs(np.sum(Na[hit] * Nb, axis=1)) >= MIN_NORMAL_COS)
-            n = int(ok.sum())
-            if n:
-                va.append(np.full(n, a)), ia.append(s[hit[ok]]), vb.append(np.full(n, b)), ib.append(j[hit[ok]])
-    return _gather(views, va, ia, vb, ib)
-
-
-def _gather(views, va, ia, vb, ib):
-    """:class:`MapPairs` from per-pair lists of view and point indices, or None when empty."""
-    if not va:
+    R, t = Tc[:, :3, :3], Tc[:, :3, 3]
+    B, has = _padded([np.asarray(p, dtype=int) for p in _partner_views(views, Tc)])  # (V, m) partners, sorted
+    S, mine = _padded([np.asarray(x, dtype=int) for x in samples])  # (V, K) samples
+    if not (has.any() and mine.any()):
         return None
-    va, ia, vb, ib = (np.concatenate(z) for z in (va, ia, vb, ib))
-    pa = np.empty((len(va), 3))
-    pb = np.empty((len(vb), 3))
-    nb = np.empty((len(vb), 3))
-    for k, v in enumerate(views):
-        m = va == k
-        pa[m] = v.points_c[ia[m]]
-        m = vb == k
-        pb[m] = v.points_c[ib[m]]
-        nb[m] = v.normals_c[ib[m]]
+    g_a = np.where(mine, stack.off[:len(views), None] + S, 0)
+    Pa = sv[:, None, None] * stack.points[g_a] @ np.swapaxes(R, 1, 2) + t[:, None]  # (V, K, 3) in b1
+    # the samples and their normals in each partner's camera frame (its own units): the partners' points
+    # need not be moved
+    c = (Pa[:, None] - t[B][:, :, None]) @ R[B] / sv[B][..., None, None]  # (V, m, K, 3)
+    n = (stack.normals[g_a] @ np.swapaxes(R, 1, 2))[:, None] @ R[B]
+    if projective:
+        j = _projective_partners(stack, B, c)
+    else:
+        j = np.full(B.shape + S.shape[1:], -1)
+        for a, i in zip(*np.nonzero(has)):
+            j[a, i] = _nearest_partners(trees, targets, B[a, i], Pa[a], radius)
+    free = ~_robot_column(Pa.reshape(-1, 3), Tb).reshape(Pa.shape[:2])
+    a, i, k = np.nonzero((j >= 0) & has[:, :, None] & (mine & free)[:, None])  # by view, partner, sample
+    b, g = B[a, i], stack.off[B[a, i]] + j[a, i, k]
+    d = c[a, i, k] - stack.points[g]
+    ok = (sv[b] * np.sqrt(_dot3(d, d)) < radius) & (np.abs(_dot3(n[a, i, k], stack.normals[g])) >= MIN_NORMAL_COS)
+    if not ok.any():
+        return None
+    va, pa, vb, pb, nb = a[ok], stack.points[g_a[a, k][ok]], b[ok], stack.points[g[ok]], stack.normals[g[ok]]
     return MapPairs(va, pa, vb, pb, nb, len(views))
 
 
@@ -263,6 +291,15 @@ class MapPairs:
     def __len__(self):
         return len(self.va)
 
+    def design(self) -> np.ndarray:
+        """(P, 13) the pairs' coefficients in the closed form of ``calibration._summary`` (samples' order),
+        computed once: they depend on the pairs alone."""
+        if getattr(self, "_design", None) is None:
+            from ._summary import pair_design
+
+            self._design = pair_design(self.pa, self.pb[self.inv_ob], self.nb[self.inv_ob])
+        return self._design
+
 
 def _geometry(x, kappa, views, start, pairs: MapPairs):
     """Everything the residuals and their Jacobian share: camera rotations and translations (V, 3, 3),
@@ -291,7 +328,7 @@ def map_residuals(x, kappa, views, start, pairs: MapPairs) -> np.ndarray:
         kappa: (V,) each view's log depth factor.
     """
     _, _, _, Xa, Xb, Nb = _geometry(x, kappa, views, start, pairs)
-    return np.sum((Xa - Xb) * Nb, axis=1)
+    return _dot3(Xa - Xb, Nb)
 
 
 def map_jacobian(x, kappa, views, start, pairs: MapPairs) -> tuple[np.ndarray, np.ndarray]:
@@ -319,8 +356,8 @@ def map_jacobian(x, kappa, views, start, pairs: MapPairs) -> tuple[np.ndarray, n
         on_a, on_b = (am == m)[:, None].astype(np.float64), (bm == m)[:, None].astype(np.float64)
         J[:, k0:k0 + 3] = on_a * rot_a + on_b * rot_b
         J[:, k0 + 3:k0 + 6] = on_a * nb_a - on_b * nb_b
-    da = np.sum(Nb * (Xa - t[pairs.va]), axis=1)
-    db = -np.sum(Nb * (Xb - t[pairs.vb]), axis=1)
+    da = _dot3(Nb, Xa - t[pairs.va])
+    db = -_dot3(Nb, Xb - t[pairs.vb])
     J[:, 12] = da + db
     # the base moves the secondary's views: -N_b x X_a for a sample, N_b x X_a for a partner (they cancel
     # when both are the secondary's: a rigid motion of both views changes nothing)

@@ -27,13 +27,23 @@ def pair_residuals(pm: PairMotions, X: np.ndarray, scale: float) -> tuple[np.nda
 
 
 def view_residuals(T_b_e: np.ndarray, T_w_c: np.ndarray, X: np.ndarray, T_b_w: np.ndarray,
-                   scale: float) -> tuple[np.ndarray, np.ndarray]:
+                   scale: float, pivot: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Absolute residuals per view between ``T_b_e X`` (kinematics) and ``T_b_w P(s)`` (reconstruction).
 
+    Args:
+        T_b_e: (N, 4, 4) end-effector poses; T_w_c: (N, 4, 4) reconstruction camera poses (unscaled).
+        X: (4, 4) hand-eye ``T_e_c``; T_b_w: (4, 4); scale: metric = scale * reconstruction units.
+        pivot: optional (3,) point in the camera frame (m) whose position is compared instead of the camera
+            centre's (``_absolute.estimate_pivot``); None or zeros: the camera centre.
+
     Returns:
-        ``(rot (N, 3) rotation vectors in the camera frame (rad), trans (N, 3) position differences in the base (m))``.
+        ``(rot (N, 3) rotation vectors in the camera frame (rad), trans (N, 3) position differences of the
+        pivot point (the camera centre by default) in the base (m))``.
     """
     C_kin = T_b_e @ X
     C_rec = T_b_w @ scaled(T_w_c, scale)
     rot = so3_log(np.swapaxes(C_kin[:, :3, :3], 1, 2) @ C_rec[:, :3, :3])
-    return rot, C_rec[:, :3, 3] - C_kin[:, :3, 3]
+    trans = C_rec[:, :3, 3] - C_kin[:, :3, 3]
+    if pivot is not None:
+        trans = trans + (C_rec[:, :3, :3] - C_kin[:, :3, :3]) @ np.asarray(pivot, dtype=np.float64)
+    return rot, trans

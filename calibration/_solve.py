@@ -120,7 +120,9 @@ class CalibrationResult:
         residuals: mean AX=XB residuals over the pairs used (contract keys ``rotation_rad``,
             ``translation_m``) plus per-arm, consecutive-pair and absolute breakdowns.
         uncertainty: 1-sigma uncertainty of each output (see ``_uncertainty``).
-        noise: per-view noise used to weight the absolute problem (estimated or given).
+        noise: per-view noise used to weight the absolute problem (estimated or given): rotation, and
+            position of the pivot point ``pivot_m`` (camera frame; zeros = the camera centre), about which the
+            views' pose errors were found to turn (``_absolute.estimate_pivot``).
         warnings: human-readable warnings (degeneracy, dropped views, ...).
         info: timings and solver details.
         diagnostics: arrays for the figures that do not go to calibration.json (the point-map refinement's
@@ -484,6 +486,7 @@ def _solve(E: list, C: list, names: tuple, method: str, opts: CalibrationOptions
     unc = _uncertainty_of(E, C, views, names, method, opts, st, sigma, info, warnings, seen)
     res = _residual_summary(E, C, views.kept, pms, st, names)
     noise = {"rotation_deg": float(np.rad2deg(sigma[0])), "translation_mm": float(sigma[1] * 1000),
+             "pivot_m": [0.0, 0.0, 0.0] if st.pivot is None else [float(v) for v in st.pivot],
              "source": "given" if given_sigma is not None else "estimated from the residuals"}
     _result_warnings(views, names, unc, opts, warnings)
     info.update({"time_closed_form_s": t_closed, "time_solve_s": t_solve, "time_total_s": time.perf_counter() - t0})

@@ -75,7 +75,7 @@ def redundancy(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(1 - h_jj) (M,), C (n, n)`` of a whitened Jacobian (M, n): the redundancy of every residual (the
     share of its variance the parameters do not absorb) and ``C = (J^T J)^+``."""
     C = np.linalg.pinv(J.T @ J)
-    h = np.einsum("ij,jk,ik->i", J, C, J)
+    h = np.sum((J @ C) * J, axis=1)
     return np.clip(1.0 - h, 0.0, 1.0), C
 
 
