@@ -15,7 +15,7 @@ demo: setup
 test: setup
 	@bash tools/setup_test_deps.sh
 	$(VENV)/bin/ruff check .
-	$(PY) -m pytest -q -p no:cacheprovider -p no:dash
+	$(PY) -m pytest -q -p no:cacheprovider -p no:dash -n auto --dist loadscope --no-loadscope-reorder
 
 lint: setup
 	$(VENV)/bin/ruff check .

@@ -1,6 +1,8 @@
 """Tiny synthetic scenes (made once per test session) and helpers for checking them.
 
-Import the fixtures into a test module: ``from tests._synth_fixtures import synth_none, ...``.
+The fixtures are registered in tests/conftest.py, so a test names them as arguments without importing them
+(a fixture imported into a test module is a new fixture of that module, built again for each module).
+Tests only read these folders: one that writes puts its output under its own ``tmp_path``.
 """
 
 from __future__ import annotations
@@ -27,6 +29,13 @@ def synth_outliers(tmp_path_factory) -> Path:
     return make_synthetic_scene(tmp_path_factory.mktemp("synth") / "outliers", seed=5, views=3, objects=2,
                                 noise="paper", outliers=0.3, render=True, pointmap_size=(80, 60), progress=False,
                                 preview=False)
+
+
+@pytest.fixture(scope="session")
+def synth_paper(tmp_path_factory) -> Path:
+    """Rendered, noise paper, 6 views per arm, 2 objects, point maps 80 x 60, seed 3."""
+    return make_synthetic_scene(tmp_path_factory.mktemp("synth") / "paper", seed=3, views=6, objects=2,
+                                noise="paper", render=True, pointmap_size=(80, 60), progress=False, preview=False)
 
 
 def true_T_b1_c(scene) -> np.ndarray:

@@ -10,7 +10,6 @@ import pytest
 from bench import tasks as bench_tasks
 from bench._stats import format_rate, wilson_interval
 from bench._truth import MIN_OBJECT_POINTS, oracle_segments, truth_cloud, write_oracle_inputs
-from tests._synth_fixtures import synth_none  # noqa: F401  (fixture)
 
 
 @pytest.mark.parametrize("k, n, low, high", [
@@ -114,7 +113,7 @@ def test_oracle_segments_relabel_true_objects_largest_first():
         oracle_segments(pts, ids[:-1], T_b1_t, [1.2, 0.8])
 
 
-def test_write_oracle_inputs_on_a_synthetic_scene(synth_none, tmp_path):  # noqa: F811
+def test_write_oracle_inputs_on_a_synthetic_scene(synth_none, tmp_path):
     from bimanual_app.scene import load_scene
     from segmentation import read_cloud
 

@@ -257,3 +257,18 @@ def test_paper_method_without_torch_names_the_extra(tiny_scene, tmp_path, capsys
     err = capsys.readouterr().err
     assert "pip install -e .[paper]" in err and "--method" in err
     assert not (tmp_path / "o").exists()
+
+
+def test_a_known_command_builds_only_its_own_parser(capsys):
+    """``bijcr calibrate ...`` imports and builds the calibrate command alone (start-up time); without a known
+    command the parser lists them all."""
+    from bimanual_app.cli import build_parser
+
+    def commands(parser):
+        return list(next(a for a in parser._actions if a.dest == "command").choices)
+
+    assert commands(build_parser("calibrate")) == ["calibrate"]
+    assert "calibrate" in commands(build_parser()) and len(commands(build_parser())) > 1
+    with pytest.raises(SystemExit):
+        main(["no-such-command"])
+    assert "calibrate" in capsys.readouterr().err

@@ -6,25 +6,15 @@ solve on the hand-eyes and be preferred by its held-out check."""
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from bimanual_app.transforms import rotation_angle_between
-from tests._synth_fixtures import synth_none  # noqa: F401  (fixture)
 
 
-@pytest.fixture(scope="module")
-def paper_scene(tmp_path_factory):
-    from bimanual_app.synth import make_synthetic_scene
-
-    return make_synthetic_scene(tmp_path_factory.mktemp("joint") / "paper", seed=3, views=6, objects=2,
-                                noise="paper", render=True, pointmap_size=(80, 60), progress=False, preview=False)
-
-
-def test_joint_estimate_beats_the_pose_only_solve_and_says_why(paper_scene):
+def test_joint_estimate_beats_the_pose_only_solve_and_says_why(synth_paper):
     from bimanual_app.scene import load_scene
     from calibration import CalibrationOptions, calibrate, scene_cloud
 
-    scene = load_scene(paper_scene)
+    scene = load_scene(synth_paper)
     plain = calibrate(scene, options=CalibrationOptions(point_maps=False))
     lines = []
     res = calibrate(scene, options=CalibrationOptions(estimator="joint"), progress=lines.append)
@@ -116,11 +106,11 @@ def test_exact_poses_with_noisy_maps_lean_on_the_poses(synth_none):
 
 
 
-def test_a_view_whose_depth_is_far_off_is_named_and_left_out(paper_scene):
+def test_a_view_whose_depth_is_far_off_is_named_and_left_out(synth_paper):
     from bimanual_app.scene import load_scene
     from calibration import CalibrationOptions, calibrate
 
-    scene = load_scene(paper_scene)
+    scene = load_scene(synth_paper)
     opts = CalibrationOptions(estimator="joint")
     base = calibrate(scene, options=opts)
     rec = scene.reconstruction
@@ -135,3 +125,45 @@ def test_a_view_whose_depth_is_far_off_is_named_and_left_out(paper_scene):
     for a, b in ((res.T_e1_c1, base.T_e1_c1), (res.T_e2_c2, base.T_e2_c2), (res.T_b1_b2, base.T_b1_b2)):
         assert np.degrees(rotation_angle_between(a[:3, :3], b[:3, :3])) < 0.3
         assert np.linalg.norm(a[:3, 3] - b[:3, 3]) < 0.005
+
+
+def test_closed_form_pair_summaries_equal_projecting_every_distance():
+    """The map term's summaries and their Jacobian (``calibration._summary``, 13 numbers per ordered view pair)
+    equal the weighted projections ``Q^T (w r)`` of the point-to-plane distances and of their analytic
+    Jacobian, away from the start too."""
+    from calibration._pointmaps import map_jacobian, map_residuals, unpack_corrections, view_camera_poses
+    from calibration._summary import pair_summary, view_twists
+    from tests._calib_fixtures import random_pair_problem
+
+    views, start, pairs = random_pair_problem()
+    rng = np.random.default_rng(6)
+    V, P = len(views), len(pairs)
+    lo, hi = np.minimum(pairs.va, pairs.vb), np.maximum(pairs.va, pairs.vb)
+    blocks = [(idx, np.linalg.qr(rng.normal(size=(len(idx), 8)))[0])
+              for key in np.unique(lo * V + hi) if len(idx := np.flatnonzero(lo * V + hi == key)) >= 8]
+    w = rng.uniform(0.5, 2.0, P)
+    S = np.zeros((8 * len(blocks), P))
+    for k, (idx, Q) in enumerate(blocks):
+        S[8 * k:8 * k + 8, idx] = Q.T
+    summary = pair_summary(blocks, pairs.va, pairs.vb, pairs.design(), w)
+    arms = np.array([v.arm for v in views])
+    for x in (np.zeros(19), rng.normal(scale=0.05, size=19)):
+        kappa = rng.normal(scale=0.02, size=V)
+        T1, T2, s, Tb = unpack_corrections(x, *start)
+        Tc = view_camera_poses(views, T1, T2, Tb)
+        R, t, sv = Tc[:, :3, :3], Tc[:, :3, 3], s * np.exp(kappa)
+        want = S @ (w * map_residuals(x, kappa, views, start, pairs))
+        assert np.abs(want).max() > 1e-2
+        assert np.allclose(summary.values(R, t, sv), want, atol=1e-10)
+        J, Jk = map_jacobian(x, kappa, views, start, pairs)
+        got = summary.jacobian(R, t, sv, *view_twists(R, t, arms, 19 + V, 19))
+        assert np.allclose(got, S @ (w[:, None] * np.concatenate([J, Jk], axis=1)), atol=1e-10)
+
+
+def test_orthonormal_basis_is_numpys_qr():
+    from calibration._joint import _orthonormal_basis
+
+    G = np.random.default_rng(2).normal(size=(40, 8)) * np.logspace(-3, 1, 8)
+    Q = _orthonormal_basis(G)
+    assert Q.shape == (40, 8)
+    assert np.allclose(Q, np.linalg.qr(G)[0], atol=1e-12) and np.allclose(Q.T @ Q, np.eye(8), atol=1e-12)

@@ -7,21 +7,11 @@ from __future__ import annotations
 import json
 
 import numpy as np
-import pytest
 
 from bimanual_app.transforms import inv_T, make_T, rotation_angle_between, so3_exp
 from calibration import CalibrationOptions as _Options
-from tests._synth_fixtures import synth_none  # noqa: F401  (fixture)
 
 REFINE = _Options(estimator="refine")  # the previous point-map estimator, tested as it was
-
-
-@pytest.fixture(scope="module")
-def paper_scene(tmp_path_factory):
-    from bimanual_app.synth import make_synthetic_scene
-
-    return make_synthetic_scene(tmp_path_factory.mktemp("pm") / "paper", seed=3, views=6, objects=2, noise="paper",
-                                render=True, pointmap_size=(80, 60), progress=False, preview=False)
 
 
 def _cloud_error_mm(path, points: np.ndarray) -> float:
@@ -36,11 +26,11 @@ def _cloud_error_mm(path, points: np.ndarray) -> float:
     return float(np.median(d[d < 0.05]) * 1e3)
 
 
-def test_refinement_brings_the_cloud_onto_the_true_surfaces(paper_scene):
+def test_refinement_brings_the_cloud_onto_the_true_surfaces(synth_paper):
     from bimanual_app.scene import load_scene
     from calibration import CalibrationOptions, calibrate, scene_cloud
 
-    scene = load_scene(paper_scene)
+    scene = load_scene(synth_paper)
     plain = calibrate(scene, options=CalibrationOptions(point_maps=False))
     lines = []
     refined = calibrate(scene, options=REFINE, progress=lines.append)
@@ -51,7 +41,7 @@ def test_refinement_brings_the_cloud_onto_the_true_surfaces(paper_scene):
     p_plain, _, i_plain = scene_cloud(scene, plain)
     p_ref, _, i_ref = scene_cloud(scene, refined)
     assert i_plain["views_placed_by"] == "reconstruction" and i_ref["views_placed_by"] == "kinematics"
-    e_plain, e_ref = _cloud_error_mm(paper_scene, p_plain), _cloud_error_mm(paper_scene, p_ref)
+    e_plain, e_ref = _cloud_error_mm(synth_paper, p_plain), _cloud_error_mm(synth_paper, p_ref)
     assert e_ref < 2.5 and e_ref < 0.3 * e_plain, (e_plain, e_ref)
     gt = scene.ground_truth
     for T, T_true in ((refined.T_e1_c1, gt.T_e1_c1), (refined.T_e2_c2, gt.T_e2_c2)):
@@ -71,11 +61,11 @@ def test_refinement_brings_the_cloud_onto_the_true_surfaces(paper_scene):
     assert pm["joint_solve"]["scale"] == plain.scale
 
 
-def test_unusable_point_maps_leave_the_joint_solve_as_it_was(paper_scene):
+def test_unusable_point_maps_leave_the_joint_solve_as_it_was(synth_paper):
     from bimanual_app.scene import load_scene
     from calibration import CalibrationOptions, calibrate, scene_cloud
 
-    scene = load_scene(paper_scene)
+    scene = load_scene(synth_paper)
     plain = calibrate(scene, options=CalibrationOptions(point_maps=False))
     rec = scene.reconstruction
     rng = np.random.default_rng(0)
@@ -124,16 +114,16 @@ def test_kinematic_anchor_moves_each_map_with_its_camera():
     assert np.allclose(C_b1, kinematic_camera_poses(res, arms, E))
 
 
-def test_cli_writes_the_refinement_and_can_skip_it(paper_scene, tmp_path, capsys):
+def test_cli_writes_the_refinement_and_can_skip_it(synth_paper, tmp_path, capsys):
     from bimanual_app.cli import main
 
-    assert main(["calibrate", str(paper_scene), "--out", str(tmp_path / "on"), "--estimator", "refine"]) == 0
+    assert main(["calibrate", str(synth_paper), "--out", str(tmp_path / "on"), "--estimator", "refine"]) == 0
     out = capsys.readouterr().out
     assert "point-map refinement: overlapping views" in out
     cal = json.loads((tmp_path / "on" / "calibration.json").read_text())
     assert cal["info"]["point_maps"]["accepted"] and cal["cloud"]["views_placed_by"] == "kinematics"
     assert (tmp_path / "on" / "point_maps.png").stat().st_size > 10_000
-    assert main(["calibrate", str(paper_scene), "--out", str(tmp_path / "off"), "--no-point-maps"]) == 0
+    assert main(["calibrate", str(synth_paper), "--out", str(tmp_path / "off"), "--no-point-maps"]) == 0
     cal = json.loads((tmp_path / "off" / "calibration.json").read_text())
     assert "point_maps" not in cal["info"] and cal["cloud"]["views_placed_by"] == "reconstruction"
     assert not (tmp_path / "off" / "point_maps.png").exists()
@@ -152,12 +142,12 @@ def test_analytic_jacobian_matches_finite_differences():
     assert np.allclose(J, Jn, atol=1e-7)
 
 
-def test_maps_a_pinhole_does_not_fit_are_matched_by_nearest_neighbour(paper_scene, monkeypatch):
+def test_maps_a_pinhole_does_not_fit_are_matched_by_nearest_neighbour(synth_paper, monkeypatch):
     import calibration._pointmaps as pm
     from bimanual_app.scene import load_scene
     from calibration import CalibrationOptions, calibrate, scene_cloud
 
-    scene = load_scene(paper_scene)
+    scene = load_scene(synth_paper)
     plain = calibrate(scene, options=CalibrationOptions(point_maps=False))
     monkeypatch.setattr(pm, "pointmap_intrinsics", lambda P, ok: np.full(4, np.nan))
     used = []
@@ -165,8 +155,8 @@ def test_maps_a_pinhole_does_not_fit_are_matched_by_nearest_neighbour(paper_scen
     monkeypatch.setattr(pm, "_nearest_partners", lambda *a, **k: used.append(1) or real(*a, **k))
     res = calibrate(scene, options=REFINE)
     assert used and res.info["point_maps"]["accepted"], res.info["point_maps"]["reason"]
-    e_plain = _cloud_error_mm(paper_scene, scene_cloud(scene, plain)[0])
-    e_ref = _cloud_error_mm(paper_scene, scene_cloud(scene, res)[0])
+    e_plain = _cloud_error_mm(synth_paper, scene_cloud(scene, plain)[0])
+    e_ref = _cloud_error_mm(synth_paper, scene_cloud(scene, res)[0])
     assert e_ref < 0.3 * e_plain, (e_plain, e_ref)
 
 
@@ -185,3 +175,40 @@ def test_exact_capture_keeps_its_exact_calibration(synth_none):
         assert np.degrees(rotation_angle_between(T[:3, :3], T_true[:3, :3])) < 0.05
         assert np.linalg.norm(T[:3, 3] - T_true[:3, 3]) < 0.001
     assert abs(res.scale / gt.scale - 1) < 0.001
+
+
+def test_find_pairs_with_samples_of_different_lengths_equals_a_plain_loop():
+    """find_pairs looks up every view's samples in all its partners at once (padded arrays); with views of
+    different sizes (one with no samples) it gives the pairs a plain loop over the view pairs gives."""
+    from scipy.spatial import cKDTree
+
+    from calibration._pointmaps import MIN_NORMAL_COS, PointMapView, _partner_views, _robot_column, find_pairs
+
+    rng = np.random.default_rng(3)
+    views = []
+    for v, n in enumerate((300, 120, 0, 250, 80, 200)):
+        pts = rng.uniform(-0.15, 0.15, (n, 3)) + [0, 0, 0.5]
+        nrm = np.tile([0.0, 0.0, -1.0], (n, 1)) + rng.normal(scale=0.2, size=(n, 3))
+        views.append(PointMapView(1 if v < 3 else 2, np.eye(4), pts, nrm / np.linalg.norm(nrm, axis=1, keepdims=True)))
+    Tc = np.stack([make_T(so3_exp(rng.normal(scale=0.05, size=3)), rng.normal(scale=0.01, size=3) + [0.6, 0, 0])
+                   for _ in views])
+    sv, Tb, radius = np.full(6, 1.1), make_T(so3_exp([0, 0, 3.0]), [1.5, 0, 0]), 0.02
+    samples = [rng.choice(len(v.points_c), min(60, len(v.points_c)), replace=False) for v in views]
+    targets = [np.arange(len(v.points_c)) for v in views]
+    got = find_pairs(views, samples, targets, Tc, sv, Tb, radius)
+    place = [sv[k] * v.points_c @ T[:3, :3].T + T[:3, 3] for k, (v, T) in enumerate(zip(views, Tc))]
+    want = []
+    for a, partners in enumerate(_partner_views(views, Tc)):
+        Pa = place[a][samples[a]]
+        for b in partners:
+            if not len(place[b]) or not len(Pa):
+                continue
+            d, j = cKDTree(place[b]).query(Pa, distance_upper_bound=radius)
+            Na, Nb = views[a].normals_c[samples[a]] @ Tc[a, :3, :3].T, views[b].normals_c[np.minimum(j, len(place[b]) - 1)] @ Tc[b, :3, :3].T
+            ok = np.isfinite(d) & ~_robot_column(Pa, Tb) & (np.abs(np.sum(Na * Nb, axis=1)) >= MIN_NORMAL_COS)
+            want += [(a, int(s), b, int(jj)) for s, jj in zip(samples[a][ok], j[ok])]
+    assert len(want) > 50
+    pa_rows = {tuple(p) for p in got.pa}
+    assert len(got) == len(want) and sorted(np.bincount(got.va, minlength=6)) == sorted(
+        np.bincount([w[0] for w in want], minlength=6))
+    assert all(tuple(views[a].points_c[s]) in pa_rows for a, s, _, _ in want)

@@ -220,16 +220,20 @@ def test_obb_keeps_an_edge_along_the_given_axis():
 
 
 def test_scene_map_distance_field_equals_scipy_edt():
-    """The slab-by-slab distance field is scipy's ``distance_transform_edt``, number for number."""
+    """The distance field (``edt`` package, float32) is scipy's ``distance_transform_edt`` to float32
+    rounding, capped at the given distance (also where the grid holds no occupied cell)."""
     from scipy import ndimage
 
-    from bimanual_app.collision._scene_map import _edt
+    from bimanual_app.collision._scene_map import _capped_edt
 
     rng = np.random.default_rng(4)
     free = rng.uniform(size=(37, 23, 19)) > 0.002
-    want = ndimage.distance_transform_edt(free, sampling=0.005).astype(np.float32)
-    assert np.array_equal(_edt(free, 0.005, chunk_cells=1000), want)
-    assert np.array_equal(_edt(free, 0.005), want)
+    want = ndimage.distance_transform_edt(free, sampling=0.005)
+    got = _capped_edt(free, 0.005, cap=1.0)
+    assert got.dtype == np.float32 and got.shape == free.shape
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(_capped_edt(free, 0.005, cap=0.02), np.minimum(want, 0.02), rtol=1e-6, atol=1e-9)
+    assert np.all(_capped_edt(np.ones((5, 6, 7), bool), 0.005, cap=0.1) == np.float32(0.1))
 
 
 def test_tables_follow_every_attach_and_detach(piper, cloud):
@@ -252,3 +256,51 @@ def test_tables_follow_every_attach_and_detach(piper, cloud):
         w.valid_batch(np.tile(q0, (3, 1)), q0)
         assert len(w._tables()["sample_start"]) == len(w.arms[0].shapes.shapes) + len(w.arms[1].shapes.shapes)
     assert len(seen) == 30
+
+
+def test_scene_field_is_the_exact_distance_transform_capped_at_pad(cloud):
+    from scipy import ndimage
+
+    sm = SceneMap(cloud[0], resolution=0.01, pad=0.08)
+    occ = np.zeros(sm.shape, dtype=bool)
+    idx = sm.cells - sm.cell_lo
+    occ[idx[:, 0], idx[:, 1], idx[:, 2]] = True
+    ref = np.minimum(ndimage.distance_transform_edt(~occ, sampling=0.01), 0.08).ravel()
+    np.testing.assert_allclose(sm.edt, ref, atol=1e-6)
+    assert sm.edt.dtype == np.float32 and sm.edt.max() == np.float32(0.08) and sm.edt.min() == 0.0
+
+
+def test_a_cut_map_equals_a_map_built_from_the_remaining_points(cloud):
+    points, box = cloud
+    sm = SceneMap(points, resolution=0.01, pad=0.1)
+    cut = sm.without(box)
+    fresh = SceneMap(points[~box], resolution=0.01, pad=0.1)
+    np.testing.assert_array_equal(cut.points, fresh.points)
+    np.testing.assert_array_equal(cut.cells, fresh.cells)
+    rng = np.random.default_rng(5)
+    near_box = BOX_CENTER + rng.uniform(-0.3, 0.3, (20000, 3))
+    anywhere = rng.uniform(sm.bounds[0] - 0.2, sm.bounds[1] + 0.2, (20000, 3))
+    for P in (near_box, anywhere):
+        np.testing.assert_array_equal(cut.lookup(P), fresh.lookup(P))
+    assert np.any(cut.lookup(near_box) > sm.lookup(near_box))  # the box is gone from the field
+    assert sm.without(np.zeros(len(points), bool)).edt is sm.edt  # nothing cut: the field is shared
+    with pytest.raises(InputError, match="without points"):
+        sm.without(np.ones(len(points), bool))
+
+
+def test_worlds_on_the_same_cloud_share_one_scene_map(piper, cloud):
+    from bimanual_app.collision import clear_shared_maps, shared_scene_map
+
+    clear_shared_maps()
+    w1 = CollisionWorld(piper, T_B1_B2, cloud[0])
+    w2 = CollisionWorld(piper, T_B1_B2, cloud[0].copy())  # equal content, another array
+    assert w2.scene is w1.scene
+    assert CollisionWorld(piper, T_B1_B2, cloud[0], resolution=0.02).scene is not w1.scene
+    assert CollisionWorld(piper, T_B1_B2, cloud[0][1:]).scene is not w1.scene
+    assert shared_scene_map(cloud[0], 0.01, 0.1) is shared_scene_map(cloud[0].copy(), 0.01, 0.1)
+    # a world that cuts or attaches makes a new map; the shared one is never edited
+    before = w1.scene.edt.copy()
+    w1.cut(cloud[1])
+    assert w1.scene is not w2.scene and np.array_equal(w2.scene.edt, before)
+    clear_shared_maps()
+    assert CollisionWorld(piper, T_B1_B2, cloud[0]).scene is not w2.scene

@@ -211,3 +211,23 @@ def test_enclosing_box_is_the_minimum_area_rectangle_longer_side_first():
     assert np.allclose(box.T_b1_o[:3, 3], centre, atol=1e-4)
     assert abs(abs(box.T_b1_o[:3, 0] @ R[:, 1]) - 1) < 1e-6  # the body's x along the box's long side
     assert np.isclose(np.linalg.det(box.T_b1_o[:3, :3]), 1.0)
+
+
+def test_contains_agrees_with_every_face_plane_at_once():
+    from scipy.spatial import ConvexHull
+    from scipy.spatial.transform import Rotation
+
+    from bimanual_app.simulation._bodies import hull_shape
+
+    rng = np.random.default_rng(3)
+    V = rng.normal(size=(400, 3)) * [0.04, 0.03, 0.06]  # a hull of many faces
+    T = make_T(Rotation.from_euler("xyz", [0.3, -0.2, 1.0]).as_matrix(), [0.3, 0.1, 0.05])
+    body = hull_shape(T, V, 0.1)
+    P = T[:3, 3] + rng.normal(size=(200_000, 3)) * 0.08
+    local = (P - body.T_b1_o[:3, 3]) @ body.T_b1_o[:3, :3]
+    eq = ConvexHull(body.vertices).equations
+    for margin in (0.0, 0.015):
+        ref = np.all(local @ eq[:, :3].T + eq[:, 3] <= margin, axis=1)
+        got = body.contains(P, margin)
+        np.testing.assert_array_equal(got, ref)
+        assert 1000 < got.sum() < len(P) - 1000  # both answers exercised

@@ -16,7 +16,7 @@ from bimanual_app.synth._camera import look_at, projection_matrix, view_matrix
 from bimanual_app.synth._emulator import perturb_poses
 from bimanual_app.synth._layout import sample_hand_eye
 from bimanual_app.transforms import apply_T, inv_T, rotation_angle, rotation_angle_between
-from tests._synth_fixtures import pointmaps_in_b1, reported_T_b1_c, synth_none, synth_outliers, true_T_b1_c, umeyama  # noqa: F401
+from tests._synth_fixtures import pointmaps_in_b1, reported_T_b1_c, true_T_b1_c, umeyama
 
 
 def test_projection_matrix_renders_opencv_pixels():
