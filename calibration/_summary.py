@@ -19,9 +19,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from bimanual_app.transforms import skew
+
 __all__ = ["PairSummary", "pair_design", "pair_summary", "view_twists"]
 
-#: hat(w)_ij = sum_k _HAT[i, j, k] w_k
+#: hat(w)_ij = sum_k _HAT[i, j, k] w_k (the derivative of vec(M hat(w)) and vec(hat(w) M) in w)
 _HAT = np.zeros((3, 3, 3))
 _HAT[2, 1, 0], _HAT[1, 2, 0] = 1.0, -1.0
 _HAT[0, 2, 1], _HAT[2, 0, 1] = 1.0, -1.0
@@ -62,7 +64,7 @@ class PairSummary:
         L[:, :9, 12] = sa[:, None] * M.reshape(D, 9)
         L[:, 9:12, 3:6] = M
         L[:, 9:12, 9:12] = -np.eye(3)
-        L[:, 9:12, 6:9] = np.einsum("ikj,dj->dik", _HAT, c)  # hat(c)
+        L[:, 9:12, 6:9] = skew(c)
         L[:, 12, 13] = sb
         # ... and those with respect to the n parameters (D, 14, n)
         P = np.concatenate([twist[self.a], twist[self.b], log_s[self.a][:, None], log_s[self.b][:, None]], axis=1)
@@ -119,7 +121,7 @@ def view_twists(R: np.ndarray, t: np.ndarray, arms: np.ndarray, n: int, kappa_at
         if arms[v] == 2:
             Rt = R[v].T
             tw[v, :3, 13:16] = Rt
-            tw[v, 3:, 13:16] = -Rt @ np.einsum("ikj,j->ik", _HAT, t[v])  # R^T (w x t) = -R^T hat(t) w
+            tw[v, 3:, 13:16] = -Rt @ skew(t[v])  # R^T (w x t) = -R^T hat(t) w
             tw[v, 3:, 16:19] = Rt
     log_s[:, 12] = 1.0
     log_s[np.arange(V), kappa_at + np.arange(V)] = 1.0

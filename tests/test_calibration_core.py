@@ -151,12 +151,15 @@ def test_absolute_refinement_lowers_its_cost_and_beats_the_closed_form_on_averag
     assert better >= 3
 
 
-def test_analytic_jacobian_matches_finite_differences():
+@pytest.mark.parametrize("pivot", [None, [0.05, -0.1, 0.9]], ids=["camera-centre", "pivot"])
+def test_analytic_jacobian_matches_finite_differences(pivot):
+    """With positions compared at the camera centre and at a pivot point of the camera frame."""
     from calibration._solve import _closed_form
 
     cap = make_capture(seed=6, views=5, noise="paper")
     E, C = [cap.T_b1_e, cap.T_b2_e], [cap.T_w_c1, cap.T_w_c2]
     st, _ = _closed_form(E, C, [np.arange(5)] * 2, [pair_motions(e, c) for e, c in zip(E, C)], CalibrationOptions())
+    st = absm.AbsoluteState(st.X, st.W, st.scale, None if pivot is None else np.array(pivot))
     sig = (0.01, 0.004)
     x = np.random.default_rng(1).normal(scale=0.05, size=25)
     J = absm.jacobian(E, C, st, sig, x)
