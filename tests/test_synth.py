@@ -351,3 +351,24 @@ def test_unknown_map_noise_is_refused(tmp_path):
     with pytest.raises(InputError) as e:
         make_synthetic_scene(tmp_path / "x", seed=0, views=3, objects=1, render=False, map_noise="dust3r")
     assert "map_noise" in str(e.value) and "fm" in str(e.value)
+
+
+def test_viewpoints_draw_past_the_budget_only_while_too_few_are_feasible():
+    """A budget too small for N feasible views is extended (up to EXTRA_CANDIDATES times) instead of failing;
+    a budget that suffices draws no more; an impossible N still raises with the counts."""
+    from bimanual_app.robots import load_robot
+    from bimanual_app.synth._layout import sample_base_pose
+    from bimanual_app.synth._viewpoints import EXTRA_CANDIDATES, plan_views
+    from bimanual_app.synth._world import SynthWorld
+
+    rng = np.random.default_rng(3)
+    with SynthWorld(load_robot("piper"), sample_base_pose(rng), rng) as world:
+        for a in range(2):
+            world.set_hand_eye(a, sample_hand_eye(rng))
+        centre = np.array([0.3, 0.0, 0.0])
+        views, st = plan_views(world, 0, 2, np.random.default_rng(0), centre, max_candidates=10)
+        assert len(views) == 2 and 10 < st["candidates"] <= 10 * EXTRA_CANDIDATES
+        _, st_big = plan_views(world, 0, 2, np.random.default_rng(0), centre, max_candidates=60)
+        assert st_big["candidates"] <= 60 and st_big["visible"] >= 2
+        with pytest.raises(RuntimeError, match="of 50 viewpoints"):
+            plan_views(world, 0, 50, np.random.default_rng(0), centre, max_candidates=3)

@@ -24,6 +24,7 @@ MIN_STATIC_FRACTION = 0.55  # share of a preview image that must show the table 
 MIN_OBJECT_FRACTION = 0.04  # share that must show objects
 SHOULDER_HEIGHT = 0.123  # Piper joint 2 above the base (m)
 MAX_FLANGE_REACH = 0.62  # flange distance from the shoulder the Piper can reach (m): 0.285 + 0.251 + 0.091
+EXTRA_CANDIDATES = 4  # when too few views are feasible, keep drawing up to this many times the budget
 MIN_OBJECT_PIXELS = 12  # an object counts as seen with this many preview pixels (80 x 60); two must be seen
 
 
@@ -68,7 +69,9 @@ def plan_views(world, arm: int, n_views: int, rng: np.random.Generator, centre: 
         ``(views, stats)``: views in capture order; stats: candidates tried / reachable / collision-free /
         visible, and the minimum pairwise rotation between the chosen views (degrees).
     Raises:
-        RuntimeError when fewer than ``n_views`` viewpoints are feasible.
+        RuntimeError when fewer than ``n_views`` viewpoints are feasible after ``EXTRA_CANDIDATES`` times
+        ``max_candidates`` draws (the budget is extended only while too few are feasible, so a layout that
+        fills it draws exactly as many candidates as without the extension).
     """
     robot = world.robot
     T_b1_b = world.T_b1_b[arm]
@@ -86,9 +89,9 @@ def plan_views(world, arm: int, n_views: int, rng: np.random.Generator, centre: 
     stats = {"candidates": 0, "reachable": 0, "collision_free": 0, "visible": 0}
     feasible: list[View] = []
     target_pool = max(24, 6 * n_views)
-    for _ in range(max_candidates):
-        if len(feasible) >= target_pool:
-            break
+    for i in range(EXTRA_CANDIDATES * max_candidates):
+        if len(feasible) >= target_pool or (i >= max_candidates and len(feasible) >= n_views):
+            break  # past the budget: keep drawing only while too few views are feasible (a far or crowded layout)
         stats["candidates"] += 1
         T_b1_c_want = _candidate(rng, centre, base_xy, spread=0.09)
         T_b_e_want = T_b_b1 @ T_b1_c_want @ T_c_e
