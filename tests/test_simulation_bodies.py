@@ -85,6 +85,23 @@ def test_truth_shapes_and_matching_to_estimates():
     assert match_truth(est, truth) == {5: 1, 7: 0}
 
 
+def test_a_body_fitted_to_part_of_a_long_object_stands_for_it():
+    """The visible half of a 40 cm box: its centre is 10 cm from the true centre, but it lies inside it."""
+    truth = truth_shapes([{"id": 0, "kind": "box", "T_b1_o": make_T(np.eye(3), [0.35, -0.1, 0.06]).tolist(),
+                           "size": [0.40, 0.16, 0.12], "mass": 0.5},
+                          {"id": 1, "kind": "box", "T_b1_o": make_T(np.eye(3), [0.35, 0.2, 0.03]).tolist(),
+                           "size": [0.05, 0.05, 0.06], "mass": 0.1}])
+    part = box_shape(make_T(np.eye(3), [0.45, -0.1, 0.06]), [0.20, 0.16, 0.12])
+    assert match_truth({3: part}, truth) == {3: 0}
+    # beside the long box, not in it, and far from every centre: no real object there
+    beside = box_shape(make_T(np.eye(3), [0.45, 0.05, 0.06]), [0.10, 0.08, 0.12])
+    assert match_truth({4: beside}, truth) == {}
+    # two estimates of one true object: the one that fills it more gets it
+    inside = box_shape(make_T(np.eye(3), [0.30, -0.1, 0.06]), [0.25, 0.15, 0.11])
+    half_out = box_shape(make_T(np.eye(3), [0.35, -0.16, 0.06]), [0.10, 0.16, 0.12])
+    assert match_truth({1: half_out, 2: inside}, truth) == {2: 0}
+
+
 def test_auto_body_is_a_box_for_a_noisy_box_and_a_hull_for_a_cylinder():
     size = np.array([0.20, 0.12, 0.08])
     rng = np.random.default_rng(3)

@@ -91,14 +91,37 @@ def _color(c: tuple, alpha: float) -> tuple:
     return (c[0], c[1], c[2], alpha)
 
 
-def match_truth(estimated: dict[int, BodyShape], truth: dict[int, BodyShape], max_dist: float = 0.08) -> dict[int, int]:
-    """Estimated object id -> the true object id nearest to it (centre distance in b1, each true object used
-    once, closest pairs first); estimated objects with no true object within ``max_dist`` m are left out."""
-    pairs = sorted((float(np.linalg.norm(e.T_b1_o[:3, 3] - t.T_b1_o[:3, 3])), ke, kt)
-                   for ke, e in estimated.items() for kt, t in truth.items())
+def _inner_points(shape: BodyShape, n: int = 6) -> np.ndarray:
+    """(K, 3) points in b1 filling ``shape``: an n x n x n grid over its box, those inside it (its centre
+    when none are)."""
+    g = (np.arange(n) + 0.5) / n - 0.5
+    local = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3) * np.asarray(shape.size, float)
+    P = local @ shape.T_b1_o[:3, :3].T + shape.T_b1_o[:3, 3]
+    inside = shape.contains(P)
+    return P[inside] if inside.any() else shape.T_b1_o[None, :3, 3]
+
+
+def match_truth(estimated: dict[int, BodyShape], truth: dict[int, BodyShape], max_dist: float = 0.08,
+                margin: float = 0.01, min_overlap: float = 0.5) -> dict[int, int]:
+    """Estimated object id -> the true object it stands for (each true object used once).
+
+    An estimated body stands for the true body that holds most of it: the share of points filling the
+    estimated body that lie inside the true one grown by ``margin`` m. A body fitted to the visible part
+    of a large object has its centre far from the true centre but lies inside it, so volume decides, not
+    centres. Pairs with a share of at least ``min_overlap``, or centres within ``max_dist`` m, are
+    matched, largest share first (then nearest centres); the rest are left out (no real object there).
+    """
+    pairs = []
+    for ke, e in estimated.items():
+        P = _inner_points(e)
+        for kt, t in truth.items():
+            share = float(t.contains(P, margin=margin).mean())
+            d = float(np.linalg.norm(e.T_b1_o[:3, 3] - t.T_b1_o[:3, 3]))
+            if share >= min_overlap or d <= max_dist:
+                pairs.append((-share, d, ke, kt))
     out, used = {}, set()
-    for d, ke, kt in pairs:
-        if d <= max_dist and ke not in out and kt not in used:
+    for _, _, ke, kt in sorted(pairs):
+        if ke not in out and kt not in used:
             out[ke] = kt
             used.add(kt)
     return out
