@@ -44,7 +44,7 @@ def metric_cloud(pts3d: np.ndarray, T_b1_w: np.ndarray, scale: float, conf: np.n
         thr = auto_conf_threshold(conf) if conf_threshold is None else float(conf_threshold)
         keep &= (conf > thr) & (conf > 0)
     p = pts3d[keep].astype(np.float64) * scale
-    p = p @ T_b1_w[:3, :3].T + T_b1_w[:3, 3]
+    p = p @ np.ascontiguousarray(T_b1_w[:3, :3].T) + T_b1_w[:3, 3]  # contiguous: BLAS, not numpy's slow loop
     c = None
     if colors is not None:
         c = check_shape("colors", colors, pts3d.shape)[keep].astype(np.uint8)

@@ -11,7 +11,7 @@ import numpy as np
 from . import _joint as jm
 from ._absolute import normal_covariance
 from ._guard import held_out_cost, jackknife_covariance
-from ._pointmaps import find_pairs, map_residuals, view_camera_poses
+from ._pointmaps import StackedViews, find_pairs, map_residuals, view_camera_poses
 from ._terms import CostTerm, solve_terms, stack, update_terms
 
 __all__ = ["JointFit", "estimate_jointly"]
@@ -235,6 +235,7 @@ def _estimate(views, arms, E, P, start, pose_noise, progress, pivot=None) -> Joi
     if min(int(np.sum(arms == 1)), int(np.sum(arms == 2))) < 2:
         return JointFit(start, False, f"needs 2 or more point maps per arm, has {int(np.sum(arms == 1))} / "
                                       f"{int(np.sum(arms == 2))}")
+    views = StackedViews(views)  # the views' flat arrays are built once for every pair search below
     samples, targets = _sample(views, POINTS_PER_VIEW), _sample(views, TARGETS_PER_VIEW, 1)
     active = ~contradicting_views(views, P, start, samples, targets)
     st, rounds, pairs = start, [], None

@@ -60,6 +60,36 @@ def pointmap_intrinsics(pts_c: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return np.array([fx, fy, cx, cy])
 
 
+def _filter3(Z: np.ndarray, reduce) -> np.ndarray:
+    """The 3x3 minimum or maximum (``reduce``: ``np.minimum`` / ``np.maximum``) of each (H, W) slice of
+    ``Z`` (V, H, W), edges repeated: ``scipy.ndimage``'s ``minimum_filter`` / ``maximum_filter`` with
+    ``size=3, mode="nearest"``, the same values (a minimum or maximum is exact). Written with numpy because
+    ``scipy.ndimage``'s import costs a command's start-up more than the filtering itself."""
+    H, W = Z.shape[1:]
+    Zp = np.pad(Z, ((0, 0), (1, 1), (1, 1)), mode="edge")
+    out = Zp[:, 1:H + 1, 1:W + 1].copy()
+    for dy in range(3):
+        for dx in range(3):
+            if dy != 1 or dx != 1:
+                reduce(out, Zp[:, dy:dy + H, dx:dx + W], out=out)
+    return out
+
+
+def _project(X: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarray, H: int, W: int
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """``(pixel (N,) int64, depth (N,))`` of points X (N, 3) in a view with pose (R (3, 3), t (3,)) and
+    pinhole ``K`` (4,) = fx, fy, cx, cy: the flat index ``row * W + col`` of the nearest pixel, -1 where
+    the point is behind the camera or outside the (H, W) map."""
+    c = (X - t) @ R
+    z = c[:, 2]
+    front = z > 1e-9
+    zs = np.where(front, z, 1.0)
+    col = np.round(K[0] * c[:, 0] / zs + K[2])
+    row = np.round(K[1] * c[:, 1] / zs + K[3])
+    seen = front & (col >= 0) & (col < W) & (row >= 0) & (row < H)
+    return np.where(seen, row * W + col, -1.0).astype(np.int64), z
+
+
 def free_space_outliers(pts3d_w: np.ndarray, T_w_c: np.ndarray, valid: np.ndarray | None = None,
                         tol_rel: float = TOL_REL, min_votes: int = MIN_VOTES) -> np.ndarray:
     """(V, H, W) bool: the points other views see through (see the module docstring).
@@ -75,13 +105,11 @@ def free_space_outliers(pts3d_w: np.ndarray, T_w_c: np.ndarray, valid: np.ndarra
     Views whose map a pinhole does not fit (``pointmap_intrinsics`` NaN) do not vote. When more than
     ``MAX_DROP_FRACTION`` of the points would go, nothing is dropped.
     """
-    from scipy.ndimage import maximum_filter, minimum_filter
-
     P = check_shape("pts3d", np.asarray(pts3d_w), (None, None, None, 3)).astype(np.float64)
     V, H, W = P.shape[:3]
     T = check_shape("T_w_c", np.asarray(T_w_c, dtype=np.float64), (V, 4, 4))
-    R, t = T[:, :3, :3], T[:, :3, 3]
-    Pc = np.einsum("vji,vhwj->vhwi", R, P - t[:, None, None, :])  # p_c = R^T (p_w - t)
+    R, t = np.ascontiguousarray(T[:, :3, :3]), np.ascontiguousarray(T[:, :3, 3])  # contiguous: BLAS matmul
+    Pc = np.matmul((P - t[:, None, None, :]).reshape(V, -1, 3), R).reshape(P.shape)  # p_c = R^T (p_w - t)
     ok = np.all(np.isfinite(Pc), axis=-1) & (np.nan_to_num(Pc[..., 2], nan=-1.0) > 0)
     if valid is not None:
         ok &= check_shape("valid", np.asarray(valid, dtype=bool), (V, H, W))
@@ -89,29 +117,25 @@ def free_space_outliers(pts3d_w: np.ndarray, T_w_c: np.ndarray, valid: np.ndarra
     # the surface each view sees near a pixel: nearest / farthest depth over its 3x3 neighbours, so that a
     # point on an object's silhouette is compared with the object, not the background beside it
     Z = np.where(ok, Pc[..., 2], np.inf)
-    z_near = np.stack([minimum_filter(Z[v], size=3, mode="nearest") for v in range(V)])
-    z_far = np.stack([maximum_filter(np.where(ok[v], Z[v], -np.inf), size=3, mode="nearest") for v in range(V)])
+    z_near = _filter3(Z, np.minimum)
+    # per view u, flat over its pixels: where u sees a surface, and the depth band of "on that surface"
+    has = np.isfinite(z_near).reshape(V, -1)
+    lo = ((1.0 - tol_rel) * z_near).reshape(V, -1)
+    hi = ((1.0 + tol_rel) * _filter3(np.where(ok, Z, -np.inf), np.maximum)).reshape(V, -1)
     out = np.zeros((V, H, W), dtype=bool)
     for v in range(V):
-        X = P[v][ok[v]]
+        X = P[v][ok[v]]  # a view's points at a time: arrays that stay in the cache
         against = np.zeros(len(X), dtype=np.int32)
         support = np.zeros(len(X), dtype=np.int32)
         for u in range(V):
             if u == v or not np.all(np.isfinite(K[u])):
                 continue
-            c = (X - t[u]) @ R[u]
-            z = c[:, 2]
-            front = z > 1e-9
-            zs = np.where(front, z, 1.0)
-            col = np.round(K[u, 0] * c[:, 0] / zs + K[u, 2])
-            row = np.round(K[u, 1] * c[:, 1] / zs + K[u, 3])
-            seen = front & (col >= 0) & (col < W) & (row >= 0) & (row < H)
-            idx = np.flatnonzero(seen)
-            r, cc = row[idx].astype(np.int64), col[idx].astype(np.int64)
-            zn, zf, zi = z_near[u][r, cc], z_far[u][r, cc], z[idx]
-            has = np.isfinite(zn)
-            against[idx] += has & (zi < (1.0 - tol_rel) * zn)
-            support[idx] += has & (zi >= (1.0 - tol_rel) * zn) & (zi <= (1.0 + tol_rel) * zf)
+            pix, z = _project(X, R[u], t[u], K[u], H, W)
+            seen = pix >= 0
+            pix[~seen] = 0
+            seen &= has[u][pix]
+            against += seen & (z < lo[u][pix])
+            support += seen & (z >= lo[u][pix]) & (z <= hi[u][pix])
         out[v][ok[v]] = (against >= min_votes) & (against > support)
     if out.sum() > MAX_DROP_FRACTION * max(int(ok.sum()), 1):
         # the views disagree wholesale (a reconstruction whose poses and maps do not fit each other):

@@ -25,6 +25,7 @@ that Open3D's or pycolmap's registration offers.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -175,6 +176,15 @@ class _Stacked:
             self.intrinsics = np.array([v.intrinsics for v in views], dtype=np.float64)
 
 
+class StackedViews(tuple):
+    """A fixed sequence of views whose flat arrays (``_Stacked``) are built once, on first use, and shared by
+    every :func:`find_pairs` call on it (an estimate finds pairs a dozen times over the same views)."""
+
+    @functools.cached_property
+    def stacked(self) -> _Stacked:
+        return _Stacked(self)
+
+
 def _projective_partners(stack: _Stacked, B: np.ndarray, c: np.ndarray) -> np.ndarray:
     """(..., K) indices into each partner view ``B`` (...)'s points of the partners of samples ``c`` (..., K, 3),
     placed in each partner's camera frame (its own units) (-1: none): the point at the pixel where each projects
@@ -220,7 +230,7 @@ def find_pairs(views, samples, targets, Tc: np.ndarray, sv: np.ndarray, Tb: np.n
         :class:`MapPairs` or None when no pair is found.
     """
     projective = all(v.projective for v in views)
-    stack = _Stacked(views)
+    stack = views.stacked if isinstance(views, StackedViews) else _Stacked(views)
     trees = None
     if not projective:
         from scipy.spatial import cKDTree

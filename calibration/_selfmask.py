@@ -13,8 +13,6 @@ the point-cloud libraries offer.
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 
 from bimanual_app.transforms import check_shape
@@ -24,6 +22,18 @@ __all__ = ["wrist_rig_pixels"]
 MIN_AGREE = 0.6  # fraction of an arm's views in which a pixel must sit at the same camera-frame point
 REL_TOL = 0.05  # "the same point": within this fraction of its distance from the camera
 NEAR_FRACTION = 0.5  # and nearer than this fraction of the view's median depth (the rig is close)
+
+
+def _nanmedian0(a: np.ndarray) -> np.ndarray:
+    """``np.nanmedian(a, axis=0)`` (NaN where a column has no number), the same values: the middle of the
+    sorted numbers, the mean of the two middle ones for an even count. numpy computes it for a short axis
+    through masked arrays, about ten times slower than sorting (NaNs sort last)."""
+    s = np.sort(a, axis=0)
+    n = np.sum(~np.isnan(a), axis=0)
+    h = n // 2
+    lo = np.take_along_axis(s, np.where(n % 2 == 1, h, np.maximum(h - 1, 0))[None], axis=0)[0]
+    hi = np.take_along_axis(s, h[None], axis=0)[0]  # n = 0: index 0 is a NaN already
+    return np.where(n > 0, (lo + hi) / 2.0, np.nan)
 
 
 def wrist_rig_pixels(pts3d_w: np.ndarray, T_w_c: np.ndarray, min_agree: float = MIN_AGREE,
@@ -46,13 +56,12 @@ def wrist_rig_pixels(pts3d_w: np.ndarray, T_w_c: np.ndarray, min_agree: float = 
     V, H, W = P.shape[:3]
     if V < 3:
         return np.zeros((H, W), dtype=bool)
-    R, t = T[:, :3, :3], T[:, :3, 3]
-    Pc = np.einsum("vji,vhwj->vhwi", R, P.astype(np.float64) - t[:, None, None, :])  # p_c = R^T (p_w - t)
+    R, t = np.ascontiguousarray(T[:, :3, :3]), T[:, :3, 3]
+    # p_c = R^T (p_w - t), one BLAS matmul per view (an einsum over these shapes is about 10x slower)
+    Pc = np.matmul((P.astype(np.float64) - t[:, None, None, :]).reshape(V, -1, 3), R).reshape(P.shape)
     finite = np.all(np.isfinite(Pc), axis=-1)
     Pc = np.where(finite[..., None], Pc, np.nan)
-    with warnings.catch_warnings():  # pixels empty in every view give NaN medians, which fail the test below
-        warnings.simplefilter("ignore", RuntimeWarning)
-        med = np.nanmedian(Pc, axis=0)
+    med = _nanmedian0(Pc)  # pixels empty in every view give NaN medians, which fail the test below
     dist = np.linalg.norm(med, axis=-1)
     dev = np.linalg.norm(Pc - med, axis=-1)
     z = Pc[..., 2]

@@ -49,19 +49,28 @@ def calibrate_stage(scene: str | Path, out: str | Path, method: str = "absolute"
     (default: the defaults); ``log``: progress lines. Raises InputError (a bad scene or output folder, the
     paper method without torch) or DegenerateCaptureError (views that do not determine the calibration).
     """
+    from threadpoolctl import threadpool_limits
+
     from bimanual_app.io_utils import check_output_dir
     from bimanual_app.scene import load_scene
 
     from ._api import calibrate, write_outputs
+    from ._figures import FigureWorker
 
     log = log or (lambda msg: None)
     out = check_output_dir(out)
     require_torch(method)
     sc = load_scene(scene)
     log(f"loaded scene '{sc.name}'")
-    result = calibrate(sc, method=method, options=options, progress=log)
-    pm = result.info.get("point_maps")
-    log(f"joint solve in {result.info['time_total_s']:.3f} s"
-        + (f", point-map refinement in {pm['time_s']:.1f} s" if pm else ""))
-    files = write_outputs(out, sc, result, conf_threshold=conf_threshold, figure=figure, log=log)
+    # BLAS on one thread: the stage's products are (N, 3) x (3, 3) and small dense systems, for which
+    # OpenBLAS's threads cost far more to start and synchronise than they give (on a busy 2-core machine
+    # an (N, 3) x (3, 3) product of the cloud took 100 ms instead of 2 ms); each product is the same sum
+    # either way. The figures' process starts now: it loads matplotlib while the solve runs (_figures.py).
+    with threadpool_limits(limits=1, user_api="blas"), FigureWorker(parallel=figure) as figures:
+        result = calibrate(sc, method=method, options=options, progress=log)
+        pm = result.info.get("point_maps")
+        log(f"joint solve in {result.info['time_total_s']:.3f} s"
+            + (f", point-map refinement in {pm['time_s']:.1f} s" if pm else ""))
+        files = write_outputs(out, sc, result, conf_threshold=conf_threshold, figure=figure, log=log,
+                              figures=figures)
     return CalibrationStage(sc, result, out, files)

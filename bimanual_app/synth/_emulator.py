@@ -21,6 +21,15 @@ of the angle and of the offset norm are the table's values. Depth noise: per poi
 ``z' = z (1 + s (0.8 n + 0.6 m))`` with ``n`` white N(0, 1) and ``m`` a smooth per-view field (bicubic
 from a 4 x 3 grid of N(0, 1)): a sigma of about ``s`` with spatially correlated warps, like a network's.
 
+Pose errors that turn about a point ahead of the camera (``NoiseLevel.pivot_m``, ``bijcr synth
+--pose-pivot-m L``): an image pins the scene it shows better than the camera's pose, so a real
+reconstruction's pose errors are mostly turns about a scene point the camera looks at (measured on a real
+capture: about 1 m along the optical axis). With ``pivot_m = l`` the rotation error turns the camera about
+the point ``(0, 0, l)`` of its own frame instead of its centre: that point stays where it was and the
+centre moves by ``(R - R') (0, 0, l)`` (``l x dphi`` for small turns, ``dphi`` the rotation error), on top
+of the level's own independent centre error. ``pivot_m = 0`` (every preset) is the camera-centre model,
+with the same random draws and the same numbers as before the option existed.
+
 Outliers: the chosen views get a rotation error of 10-40 degrees (uniform, random axis) and a centre
 error of 10-30 cm (uniform, random direction) instead.
 
@@ -45,12 +54,15 @@ CONF_MIN, CONF_MAX = 1.0, 10.0
 
 @dataclass(frozen=True)
 class NoiseLevel:
-    """Per-camera-pose noise: RMS rotation angle (deg), RMS camera-centre offset (m), relative depth sigma."""
+    """Per-camera-pose noise: RMS rotation angle (deg), RMS camera-centre offset (m), relative depth sigma,
+    and the distance (m) along the optical axis of the point the rotation errors turn about (0: the camera
+    centre; ``dataclasses.replace(level, pivot_m=1.0)`` for a real model's errors, module docstring)."""
 
     name: str
     rot_deg: float
     trans_m: float
     depth_rel: float
+    pivot_m: float = 0.0
 
 
 NOISE_LEVELS = {
@@ -96,7 +108,8 @@ def perturb_poses(T_b1_c: np.ndarray, level: NoiseLevel, outlier: np.ndarray, rn
     Args:
         outlier: (M,) bool, views that get a gross error instead of the level's noise.
     Returns:
-        ``(T_b1_c_reported, rot_err_rad (M,), centre_err_m (M,))``.
+        ``(T_b1_c_reported, rot_err_rad (M,), centre_err_m (M,))``; with ``level.pivot_m`` the centre error
+        includes the move of the turn about the pivot (outlier views keep their gross error as drawn).
     """
     T = check_T("T_b1_c", T_b1_c)
     M = len(T)
@@ -107,6 +120,9 @@ def perturb_poses(T_b1_c: np.ndarray, level: NoiseLevel, outlier: np.ndarray, rn
         w[outlier] = _random_unit(rng, n_out) * np.deg2rad(rng.uniform(*OUTLIER_ROT_DEG, n_out))[:, None]
         dt[outlier] = _random_unit(rng, n_out) * rng.uniform(*OUTLIER_TRANS_M, n_out)[:, None]
     R = T[:, :3, :3] @ so3_exp(w)  # rotation about the camera centre
+    if level.pivot_m:  # ... or about the point pivot_m ahead: that point stays, the centre moves (R - R') l
+        ell = np.array([0.0, 0.0, float(level.pivot_m)])
+        dt = dt + np.where(np.asarray(outlier, dtype=bool)[:, None], 0.0, (T[:, :3, :3] - R) @ ell)
     out = make_T(R, T[:, :3, 3] + dt)
     return out, np.linalg.norm(w, axis=1), np.linalg.norm(dt, axis=1)
 

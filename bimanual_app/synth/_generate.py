@@ -11,7 +11,7 @@ import shutil
 import tempfile
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -73,8 +73,12 @@ class _Log:
             yield lambda: prog.advance(task)
 
 
+#: the farthest pivot of the pose errors (m) bijcr synth accepts: beyond it no wrist camera sees the point
+MAX_POSE_PIVOT_M = 5.0
+
+
 def _check_args(out: Path, views, objects, noise, outliers, touching, overwrite, pointmap_size, image_size,
-                map_noise=None) -> None:
+                map_noise=None, pose_pivot_m=0.0) -> None:
     probs = []
 
     def bad(field, msg, fix):
@@ -89,6 +93,9 @@ def _check_args(out: Path, views, objects, noise, outliers, touching, overwrite,
     if map_noise is not None and not isinstance(map_noise, MapNoise) and map_noise not in MAP_NOISES:
         bad("map_noise", f"unknown point-map noise model {map_noise!r}",
             f"use one of {', '.join(MAP_NOISES)}, a MapNoise, or None for the noise level's own depth noise")
+    if not 0.0 <= float(pose_pivot_m) <= MAX_POSE_PIVOT_M:
+        bad("pose_pivot_m", f"the pivot of the pose errors must be in [0, {MAX_POSE_PIVOT_M:g}] m ahead of the "
+            f"camera, got {pose_pivot_m!r}", "e.g. --pose-pivot-m 1.0 (0: errors turn about the camera centre)")
     if not 0.0 <= float(outliers) <= 0.5:
         bad("outliers", f"outlier fraction must be in [0, 0.5], got {outliers!r}", "e.g. --outliers 0.2")
     if not 0.0 <= float(touching) <= 1.0:
@@ -141,7 +148,8 @@ def make_synthetic_scene(out_dir: str | os.PathLike, seed: int = 0, views: int =
                          *, image_size: tuple[int, int] = (640, 480), focal: float = 420.0,
                          pointmap_size: tuple[int, int] = (160, 120), depth_stride: int = 2,
                          as_joints: bool = False, name: str | None = None, overwrite: bool = False,
-                         progress: bool = True, preview: bool = True, map_noise: str | MapNoise | None = None) -> Path:
+                         progress: bool = True, preview: bool = True, map_noise: str | MapNoise | None = None,
+                         pose_pivot_m: float = 0.0) -> Path:
     """Generate a synthetic scene folder (docs/synth.md) and return its path.
 
     Args:
@@ -166,9 +174,17 @@ def make_synthetic_scene(out_dir: str | os.PathLike, seed: int = 0, views: int =
             like: per-view depth scale, smooth warp, correlated noise; docs/synth.md), a
             :class:`~bimanual_app.synth._emulator.MapNoise`, or None (default: the level's own depth noise;
             scenes are then byte-identical to those made before this option existed).
+        pose_pivot_m: the reported camera poses' rotation errors turn about the point this far (m, 0..5)
+            along each camera's optical axis instead of its centre, so the centre errs by about
+            ``pose_pivot_m`` x the rotation error on top of the level's own centre noise (what real
+            reconstructions do: docs/synth.md). 0 (default): byte-identical to scenes made before the option.
     """
     out = Path(out_dir).expanduser().absolute()
-    _check_args(out, views, objects, noise, outliers, touching, overwrite, pointmap_size, image_size, map_noise)
+    _check_args(out, views, objects, noise, outliers, touching, overwrite, pointmap_size, image_size, map_noise,
+                pose_pivot_m)
+    level = NOISE_LEVELS[noise]
+    if float(pose_pivot_m):
+        level = replace(level, pivot_m=float(pose_pivot_m))
     map_model = MAP_NOISES[map_noise] if isinstance(map_noise, str) else map_noise
     log = _Log(progress)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -177,7 +193,7 @@ def make_synthetic_scene(out_dir: str | os.PathLike, seed: int = 0, views: int =
     os.umask(umask)
     os.chmod(stage, 0o777 & ~umask)  # mkdtemp makes it private; the scene is an ordinary folder
     try:
-        _generate(stage, out.name if name is None else name, int(seed), int(views), int(objects), NOISE_LEVELS[noise],
+        _generate(stage, out.name if name is None else name, int(seed), int(views), int(objects), level,
                   float(outliers), bool(render), float(touching), tuple(image_size), float(focal),
                   tuple(pointmap_size), int(depth_stride), bool(as_joints), bool(preview), log, map_model)
         if out.exists():
@@ -349,6 +365,9 @@ def _gt_extras(seed: int, n_views: int, n_objects: int, level, outlier_frac: flo
                        for a in range(2)},
         "table": {"T_b1_t": table.T_b1_t, "size": table.size},
     }
+    if level.pivot_m:  # only then: default scenes stay byte-identical
+        extras["synthetic"]["pose_pivot_m"] = level.pivot_m
+        extras["noise"]["pose_pivot_m"] = level.pivot_m
     if map_model is not None:  # only then: default scenes stay byte-identical
         extras["synthetic"]["map_noise"] = map_model.name
         extras["noise"]["map_noise"] = {"model": map_model.name, "depth_scale_rel_sigma": map_model.scale_rel,

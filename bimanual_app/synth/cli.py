@@ -31,6 +31,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="point-map errors replacing the noise level's depth noise: fm = foundation-model like "
                         "(per-view depth scale 1 %%, smooth quadratic warp 0.5 %%, correlated noise 0.3 %%; "
                         "default: the level's own depth noise)")
+    p.add_argument("--pose-pivot-m", type=float, default=0.0, metavar="L",
+                   help="the camera poses' rotation errors turn about the point L metres ahead of each camera "
+                        "(on its optical axis) instead of its centre, so the centre errs by about L x the rotation "
+                        "error, as in real reconstructions (e.g. 1.0; default 0: about the camera centre)")
     p.add_argument("--outliers", type=float, default=0.0, metavar="F",
                    help="fraction of each arm's views with a gross pose error (default 0)")
     p.add_argument("--touching", type=float, default=0.5, metavar="F",
@@ -52,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     path = make_synthetic_scene(args.out, seed=args.seed, views=args.views, objects=args.objects, noise=args.noise,
                                 outliers=args.outliers, render=not args.no_render, touching=args.touching,
                                 pointmap_size=args.pointmap_size, as_joints=args.joints, overwrite=args.overwrite,
-                                map_noise=args.map_noise,
+                                map_noise=args.map_noise, pose_pivot_m=args.pose_pivot_m,
                                 progress=not args.quiet)
     print(path)
     return 0
