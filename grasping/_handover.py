@@ -20,6 +20,13 @@ clear receiver's, so that the exact IK checks go first where both arms are likel
 when the primary reaches its pose, the secondary reaches a clear receiver grasp (with its pre-grasp), and
 the two arms do not collide. The first such pair wins.
 
+Beside these giver-first transfer poses, the search ranks poses solved for a (giver, clear receiver) pair
+together (``_handover_pairs``): the object turned so that each gripper comes in from its own base's side,
+scored by named, weighted terms (both arms' priors, the receiver's grasp score and how surely its pads end on
+the object) and checked exactly with that one receiver. The places include points towards where the object
+lies (raised), not only the line between the bases. Receivers whose contact lies at their fingertips (a hold
+on the object's edge) go after deeper ones of the same reach and catch.
+
 Why not a fixed order of transfer poses: measured on the 20 bench scenes, the Piper's long wrist (22 cm from
 joint 5 to the fingertips, joint 5 within +-70 degrees) leaves few poses at 20-30 cm above the table that
 both arms reach, and a fixed order spent its IK budget on the giver's side alone.
@@ -36,6 +43,7 @@ from bimanual_app.transforms import inv_T
 from ._antipodal import GraspSet, rotate_about_approach
 from ._arms import Arm, ArmGrasps, TwoArmCheck, reachable_grasps
 from ._collision import GripperCollider, PointClearance, grippers_collide_many, grippers_distance
+from ._handover_pairs import PairParams, pair_costs, pair_moves
 from ._objects import ObjectGeometry, Support
 
 __all__ = ["HandoverParams", "Handover", "handover_givers", "plan_handover", "plan_handovers", "release_width",
@@ -50,7 +58,8 @@ class HandoverParams:
     heights: the object's centre above the table. min_rise: ... and at least this far above where it lies
         (the task counts a hand-over when the object ends 10 cm up).
     offsets: sideways from the line between the bases. fractions: where along that line, from the primary
-        (0) to the secondary (1).
+        (0) to the secondary (1). towards_object: further places, these fractions of the way from the
+        line's midpoint to above where the object lies (1: straight above it).
     tilts: the giver's approach, down from horizontal (0 = pointing at the secondary's base, pi/2 = down).
     rolls: turns of the object about the giver's approach.
     gap: least distance between the two grippers (and the giver's retreat sweep).
@@ -82,6 +91,8 @@ class HandoverParams:
         behind the fingertips (the picks go as deep as the fingers fit, and cover a small object where the
         receiver's fingers would go; on the task bench's seed 16 no pick of the mug left the secondary a grasp
         it reached, a shallower hold did); empty: only the picks.
+    pairs: transfer poses solved for a (giver, receiver) pair together (:mod:`._handover_pairs`), ranked with
+        the giver-first ones by the same predicted cost.
     alternatives: hand-overs kept per object (:func:`plan_handovers`): the best first, then ones with another
         giver grasp or transfer pose, for the task to fall back on when one cannot be planned or previewed.
     b2b_sigma_m, b2b_sigma_rad: 1-sigma error of the calibrated ``T_b1_b2`` (translation per axis, rotation)
@@ -116,6 +127,8 @@ class HandoverParams:
     alternatives: int = 3
     release_clearance: float = 0.010
     shallow_depths: tuple[float, ...] = (0.4, 0.25)
+    pairs: PairParams = PairParams()
+    towards_object: tuple[float, ...] = (0.5, 1.0)
 
 
 @dataclass
@@ -131,8 +144,8 @@ class Handover:
     receiver: the receiver's grasp at the transfer pose: ``T_b1_g``, ``width``, ``contact_width``, ``score``,
         ``q``, ``q_pre``, ``index`` (in the free-space grasp set).
     gap: smallest distance between the two grippers when both hold the object (m).
-    score: mean of the two grasp scores times ``catch`` and the giver's hold probability
-        (:func:`giver_hold_probability`).
+    score: mean of the two grasp scores times ``catch`` and both grippers' hold probabilities
+        (:func:`giver_hold_probability` of each one's depth).
     catch: probability that the receiver's open fingers close around the object given the calibration
         error (:func:`catch_probability`); margin: the receiver's opening past the object on each side (m);
         sigma: the position error assumed at the transfer pose (1-sigma, m).
@@ -217,6 +230,11 @@ def _transfer_targets(geo: ObjectGeometry, support: Support, T_b1_b2: np.ndarray
     lowest = float(geo.centre @ up - support.height) + p.min_rise  # the centre's height above the table
     heights = [h for h in p.heights if h >= lowest] or [lowest]
     targets = [f * base_line + floor + h * up + off * across for h in heights for f in p.fractions for off in p.offsets]
+    # and towards where the object lies (raised): near the edge of both reaches, the place both arms reach
+    # may be nearer the object than the line between the bases
+    here = geo.centre - (geo.centre @ up) * up
+    mid = 0.5 * base_line
+    targets += [(1 - f) * mid + f * here + floor + h * up for h in heights for f in p.towards_object]
     return np.array(targets).reshape(-1, 3), line
 
 
@@ -355,8 +373,9 @@ def plan_handovers(geo: ObjectGeometry, support: Support, giver: ArmGrasps, free
                    collider: GripperCollider, check: TwoArmCheck | None, params: HandoverParams = HandoverParams(),
                    clear: list[np.ndarray] | None = None, obstacles_b1: np.ndarray | None = None,
                    object_points_b1: np.ndarray | None = None, n: int | None = None) -> tuple[list[Handover], dict]:
-    """Up to ``n`` (default ``params.alternatives``) feasible, mutually distinct hand-overs (:func:`_distinct`)
-    in the order the search finds them (the first is :func:`plan_handover`'s), with counts of what was tried.
+    """Up to ``n`` (default ``params.alternatives``) feasible, mutually distinct hand-overs (:func:`_distinct`):
+    the first the search finds (:func:`plan_handover`'s), then those with a giver grasp not used before, then
+    the others, each group in the order found; with counts of what was tried.
     The search budget (``params.max_transfer_checks``) is shared: alternatives only use what the first left.
     Arguments as for :func:`plan_handover`."""
     n = params.alternatives if n is None else int(n)
@@ -365,14 +384,20 @@ def plan_handovers(geo: ObjectGeometry, support: Support, giver: ArmGrasps, free
     found: list[Handover] = []
     if len(giver) == 0 or len(free) == 0 or "secondary" not in arms or n < 1:
         return found, stats
+    # alternatives with another giver grasp first: a pick that does not hold the object fails every hand-over
+    # that starts with it, whatever the transfer pose (while givers are left unused, the search goes on for
+    # at most 2n distinct hand-overs)
+    same: list[Handover] = []
+    n_givers = min(params.givers, len(giver))
     for h in _search(geo, support, giver, free, arms, collider, check, params, clear, obstacles_b1, object_points_b1,
                      stats):
-        if _distinct(h, found):
+        if _distinct(h, found + same):
             h.tried = dict(stats)
-            found.append(h)
-            if len(found) >= n:
+            (found if all(f.giver_index != h.giver_index for f in found) else same).append(h)
+            enough = len(found) + len(same) >= (n if len(found) >= n_givers else 2 * n)
+            if len(found) >= n or enough:
                 break
-    return found, stats
+    return (found + same)[:n], stats
 
 
 def _scene_clearance(geo: ObjectGeometry, support: Support, sec: Arm, params: HandoverParams, obstacles_b1,
@@ -396,6 +421,7 @@ def _ranked_transfers(geo, support, giver, free, arms, collider, params, clear, 
     ``(cost, order of preference, giver index, move (4, 4), clear receivers)``, cheaper first."""
     prim, sec = arms["primary"], arms["secondary"]
     cands = []
+    clear_of = {}  # giver index -> its clear receivers (best score first)
     n_pref = 0
     for gi in range(min(params.givers, len(giver))):
         G = giver.grasps.T_b1_g[gi]
@@ -406,6 +432,7 @@ def _ranked_transfers(geo, support, giver, free, arms, collider, params, clear, 
         stats["clear_receivers"] += len(clear_g)
         if not len(clear_g):
             continue
+        clear_of[gi] = clear_g
         moves = np.stack(_transfer_moves(geo, support, sec.T_b1_b, G, params))
         pg = _prior(prim, moves @ G)
         ok = np.nonzero(pg < params.prior_cut)[0]
@@ -422,8 +449,42 @@ def _ranked_transfers(geo, support, giver, free, arms, collider, params, clear, 
             if best[j] < params.prior_cut:
                 cands.append((float(pg[m] + best[j]), n_pref + int(m), gi, moves[m], clear_g))
         n_pref += len(moves)
+    cands += _paired_transfers(geo, support, giver, free, arms, params, clear_of, scene_clear, obj_pts, stats)
     cands.sort(key=lambda c: (round(c[0] / 0.02), c[1]))  # cheaper first; ties: order of preference
     return cands
+
+
+def _paired_transfers(geo, support, giver, free, arms, params, clear_of, scene_clear, obj_pts, stats) -> list[tuple]:
+    """Candidates as :func:`_ranked_transfers`'s, their transfer poses solved for each (giver, clear receiver)
+    pair (:func:`._handover_pairs.pair_moves`): cost = the named terms of ``PAIR_COST_TERMS`` (both arms'
+    priors, the receiver's score); each candidate offers only its own receiver. After the giver-first
+    candidates of equal cost."""
+    prim, sec = arms["primary"], arms["secondary"]
+    pp = params.pairs
+    targets, _ = _transfer_targets(geo, support, sec.T_b1_b, params)
+    out = []
+    for gi, clear_g in clear_of.items():
+        G = giver.grasps.T_b1_g[gi]
+        ks = clear_g[: pp.receivers]
+        moves, which = pair_moves(geo.centre, support.up, G[:3, 2], free.T_b1_g[ks][:, :3, 2], targets,
+                                  prim.T_b1_b[:3, 3], sec.T_b1_b[:3, 3], pp)
+        moves, which = moves.reshape(-1, 4, 4), ks[which.reshape(-1)]
+        pg = _prior(prim, moves @ G)
+        ok = np.nonzero(pg < params.prior_cut)[0]
+        pr = _prior(sec, moves[ok] @ free.T_b1_g[which[ok]])
+        ok, pr = ok[pr < params.prior_cut], pr[pr < params.prior_cut]
+        cost = pair_costs({"giver_reach": pg[ok], "receiver_reach": pr, "receiver_grasp": 1.0 - free.score[which[ok]],
+                           "receiver_hold": 1.0 - giver_hold_probability(free.depth[which[ok]], params)})
+        best = np.argsort(cost, kind="stable")[: pp.keep]
+        ok, cost = ok[best], cost[best]
+        if scene_clear is not None and len(ok):
+            free_of_scene = _clear_of_scene(scene_clear, moves[ok], obj_pts)
+            stats["object_in_scene"] += int((~free_of_scene).sum())
+            ok, cost = ok[free_of_scene], cost[free_of_scene]
+        stats["paired_poses"] = stats.get("paired_poses", 0) + len(ok)
+        out += [(float(c), 10 ** 7 + len(out) + j, gi, moves[m], np.array([which[m]])) for j, (c, m) in
+                enumerate(zip(cost, ok))]
+    return out
 
 
 def _receiver_order(sec: Arm, Rt: np.ndarray, free: GraspSet, clear: np.ndarray,
@@ -434,7 +495,10 @@ def _receiver_order(sec: Arm, Rt: np.ndarray, free: GraspSet, clear: np.ndarray,
     tiers = np.digitize(_prior(sec, Rt), (0.05, 0.08, 0.12))
     margin = 0.5 * (free.width[clear] - free.contact_width[clear])
     catch = catch_probability(margin, _transfer_sigma(params, sec.T_b1_b, Rt[:, :3, 3]))
-    order = np.concatenate([(lambda i: i[np.argsort(-np.round(catch[i], 1), kind="stable")])(np.nonzero(tiers == t)[0])
+    # and whether its pads end up on the object: a receiver whose contact lies at its fingertips (depth 0)
+    # closes on the object's edge and lets it slip when the object is a few millimetres off along its approach
+    likely = np.round(catch * giver_hold_probability(free.depth[clear], params), 1)
+    order = np.concatenate([(lambda i: i[np.argsort(-likely[i], kind="stable")])(np.nonzero(tiers == t)[0])
                             for t in range(3)])[: params.receivers_checked]
     return order, catch, margin
 
@@ -467,7 +531,7 @@ def _first_receiver(geo, giver, free, sec, sec_reach, T_b2_b1, collider, check, 
                     "terms": {t: float(v[k]) for t, v in free.terms.items()},
                     "q": rr.q[n], "q_pre": rr.q_pre[n], "index": int(k)}
         c = float(catch[order[n]])
-        hold = float(giver_hold_probability(giver.grasps.depth[gi], params))
+        hold = float(giver_hold_probability(np.array([giver.grasps.depth[gi], free.depth[k]]), params).prod())
         score = 0.5 * (float(giver.grasps.score[gi]) + float(free.score[k])) * c * hold
         return Handover(move, move[:3, :3] @ geo.centre + move[:3, 3], gi, Gt, rg.q[0], w_closed, receiver,
                         gap, score, dict(stats), c, float(margin[order[n]]),

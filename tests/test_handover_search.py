@@ -1,0 +1,168 @@
+"""Hand-over search: transfer poses solved for a (giver, receiver) pair, named cost terms, receiver hold."""
+
+import numpy as np
+import pytest
+from _grasp_fixtures import Obj, facing_T_b1_b2, make_cloud
+from scipy.spatial.transform import Rotation
+
+from grasping._handover_pairs import PAIR_COST_TERMS, PairParams, pair_costs, pair_moves, wahba_rotations
+
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def test_wahba_recovers_a_rotation_from_three_vector_pairs():
+    R = Rotation.from_euler("xyz", [[0.3, -1.1, 2.0], [2.9, 0.2, -0.4]]).as_matrix()
+    src = np.array([[[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]]] * 2)
+    dst = np.einsum("nij,nvj->nvi", R, src)
+    out = wahba_rotations(src, dst, np.array([1.0, 1.0, 0.2]))
+    assert np.allclose(out, R, atol=1e-9)
+    assert np.allclose(np.linalg.det(out), 1.0)
+    with pytest.raises(ValueError, match=r"\(N, V, 3\)"):
+        wahba_rotations(src[:, :2], dst, np.ones(3))
+
+
+def test_wahba_returns_a_proper_rotation_for_a_reflected_target():
+    src = np.eye(3)[None]
+    dst = np.diag([1.0, 1.0, -1.0])[None]  # a reflection: the best proper rotation is not it
+    out = wahba_rotations(src, dst, np.ones(3))
+    assert np.allclose(out[0] @ out[0].T, np.eye(3), atol=1e-9) and np.isclose(np.linalg.det(out[0]), 1.0)
+
+
+def test_pair_moves_point_each_approach_away_from_its_own_base():
+    """A giver approaching from above and a receiver from the side (perpendicular): at a transfer pose
+    between the bases the giver can still come from above (giver tilt pi/2) while the receiver comes in
+    horizontally from the secondary's side -- both exactly, and the object's centre lands on the target."""
+    centre = np.array([0.2, 0.3, 0.03])
+    a_g = np.array([0.0, 0.0, -1.0])  # the giver's approach: straight down where the object lies
+    a_r = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])  # two receivers, both horizontal
+    o1, o2 = np.zeros(3), np.array([0.6, 0.0, 0.0])
+    targets = np.array([[0.3, 0.0, 0.2], [0.3, 0.1, 0.25]])
+    p = PairParams(giver_tilts=(np.pi / 2,), receiver_tilts=(0.0,))
+    moves, which = pair_moves(centre, UP, a_g, a_r, targets, o1, o2, p)
+    assert moves.shape == (2, 2, 1, 1, 4, 4) and which.shape == (2, 2, 1, 1)
+    for r in range(2):
+        for t in range(2):
+            M = moves[r, t, 0, 0]
+            assert np.allclose(M[:3, :3] @ M[:3, :3].T, np.eye(3), atol=1e-9)
+            assert np.allclose(M[:3, :3] @ centre + M[:3, 3], targets[t])
+            assert np.allclose(M[:3, :3] @ a_g, -UP, atol=1e-9)  # the giver still from above
+            away = targets[t] - o2
+            away[2] = 0.0
+            assert np.allclose(M[:3, :3] @ a_r[r], away / np.linalg.norm(away), atol=1e-9)
+            assert which[r, t, 0, 0] == r
+
+
+def test_pair_moves_keep_the_object_upright_when_the_approaches_are_opposite():
+    """Opposite approaches leave the turn about them free; the weak pull on up settles it: upright."""
+    centre = np.array([0.3, 0.2, 0.04])
+    a_g = np.array([1.0, 0.0, 0.0])
+    a_r = np.array([[-1.0, 0.0, 0.0]])
+    o1, o2 = np.zeros(3), np.array([0.6, 0.0, 0.0])
+    targets = np.array([[0.3, 0.0, 0.2]])
+    moves, _ = pair_moves(centre, UP, a_g, a_r, targets, o1, o2, PairParams(giver_tilts=(0.0,), receiver_tilts=(0.0,)))
+    M = moves.reshape(4, 4)
+    assert np.allclose(M[:3, :3] @ a_g, [1.0, 0, 0], atol=1e-9) and np.allclose(M[:3, :3] @ UP, UP, atol=1e-9)
+
+
+def test_pair_costs_weigh_named_terms_and_refuse_unknown_ones():
+    terms = {"giver_reach": np.array([0.01, 0.05]), "receiver_reach": np.array([0.02, 0.0]),
+             "receiver_grasp": np.array([0.5, 0.0]), "receiver_hold": np.array([0.5, 0.0])}
+    w = PAIR_COST_TERMS
+    expect = [0.01 * w["giver_reach"] + 0.02 * w["receiver_reach"] + 0.5 * w["receiver_grasp"] + 0.5 * w["receiver_hold"],
+              0.05 * w["giver_reach"]]
+    assert np.allclose(pair_costs(terms), expect)
+    with pytest.raises(ValueError, match="without a weight"):
+        pair_costs({"giver_reach": np.zeros(2), "elbow_room": np.zeros(2)})
+
+
+class _Cone:
+    """A reach filter (with a prior, as ``ArmReach`` has) accepting grasps whose approach (z of g, base frame)
+    is within ``max_deg`` of the direction away from the base, tilted down by ``tilt_deg`` (lo, hi); on the
+    table (below 12 cm) every grasp."""
+
+    def __init__(self, max_deg, tilt_deg):
+        from grasping import callable_filter
+
+        self.max_deg, self.tilt_deg = max_deg, tilt_deg
+        self.filter = callable_filter(self.ok)
+
+    def ok(self, T):
+        z = T[:, :3, 2]
+        away = T[:, :3, 3] * np.array([1.0, 1.0, 0.0])
+        away /= np.maximum(np.linalg.norm(away, axis=1, keepdims=True), 1e-9)
+        tilt = np.radians(np.clip(np.degrees(np.arcsin(np.clip(-z[:, 2], -1, 1))), *self.tilt_deg))
+        want = np.cos(tilt)[:, None] * away - np.sin(tilt)[:, None] * UP
+        ang = np.degrees(np.arccos(np.clip((z * want).sum(axis=1), -1, 1)))
+        return (T[:, 2, 3] < 0.12) | (ang < self.max_deg)
+
+    def __call__(self, T, width=None, retreat=None):
+        return self.filter(T, width, retreat)
+
+    def prior(self, T):
+        return np.where(self.ok(np.asarray(T).reshape(-1, 4, 4)), 0.0, np.inf)
+
+
+def test_plan_handovers_finds_poses_where_each_arm_reaches_only_from_its_own_side():
+    """The giver reaches only grasps coming in level from its own side, the receiver only ones tilted
+    35-45 degrees down from its own side (narrow cones about the directions away from each base): the
+    pair search solves the object's turn for such pairs, and the hand-over found has both grippers there."""
+    from grasping import Arm, PlanParams, plan_grasps, scene_cloud
+
+    T12 = facing_T_b1_b2(0.6)
+    P, L = make_cloud([Obj("box", (0.3, 0.2), (0.05, 0.05, 0.08), 0.3)], table_size=(0.8, 0.8))
+    giver, receiver = _Cone(10.0, (0.0, 5.0)), _Cone(8.0, (35.0, 45.0))
+    arms = {"primary": Arm("primary", np.eye(4), giver), "secondary": Arm("secondary", T12, receiver)}
+    plan = plan_grasps(scene_cloud(P, L), arms=arms, T_b1_b2=T12, params=PlanParams(retry_factor=1))
+    op = plan.objects[0]
+    h = op.handover
+    assert h is not None, (op.notes, op.stats.get("handover"))
+    assert op.stats["handover"]["paired_poses"] > 0
+    assert receiver.ok((np.linalg.inv(T12) @ h.receiver["T_b1_g"])[None])[0]
+    assert giver.ok(h.giver_T_b1_g[None])[0]
+    assert np.allclose(h.T_move[:3, :3] @ op.geometry.centre + h.T_move[:3, 3], h.centre)
+
+
+def test_receiver_order_prefers_pads_on_the_object():
+    """Among receivers the secondary is as likely to reach and to catch, one whose contact lies deeper
+    behind its fingertips (pads on the object, not on its edge) is checked first."""
+    from grasping import Arm, HandoverParams, callable_filter
+    from grasping._antipodal import GraspSet
+    from grasping._handover import _receiver_order
+
+    n = 3
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, 0, 3] = 0.3
+    free = GraspSet(0, T, np.full(n, 0.07), np.full(n, 0.05), np.array([0.0, 0.02, 0.004]), np.full(n, 0.6))
+    sec = Arm("secondary", facing_T_b1_b2(0.6), callable_filter(lambda T: np.ones(len(T), bool)))
+    order, catch, margin = _receiver_order(sec, T, free, np.arange(n), HandoverParams())
+    assert list(order) == [1, 2, 0]
+    assert np.allclose(margin, 0.01)
+
+
+def test_alternatives_try_another_giver_grasp_first(monkeypatch):
+    """A pick that does not hold the object fails every hand-over starting with it: after the first
+    hand-over, the alternatives with a giver grasp not used yet come before other transfer poses of a used one."""
+    import grasping._handover as gh
+
+    def fake(giver_index, x):
+        centre = np.array([x, 0.0, 0.2])
+        T = np.eye(4)
+        T[:3, 3] = centre
+        return gh.Handover(T, centre, giver_index, np.eye(4), np.zeros(6), 0.05, {}, 0.02, 0.5)
+
+    def search(order):
+        def _search(*args):
+            yield from (fake(g, 0.1 * k) for k, g in enumerate(order))
+        return _search
+
+    args = (None, None, [1, 1, 1], [1], {"primary": None, "secondary": None}, None, None)  # three givers
+    monkeypatch.setattr(gh, "_search", search([0, 0, 1, 0, 2]))
+    found, _ = gh.plan_handovers(*args, params=gh.HandoverParams(alternatives=3))
+    assert [h.giver_index for h in found] == [0, 1, 2]
+    monkeypatch.setattr(gh, "_search", search([0, 0, 0, 1]))
+    found, _ = gh.plan_handovers(*args, params=gh.HandoverParams(alternatives=3))
+    assert [h.giver_index for h in found] == [0, 1, 0]  # only two givers: then another pose of the first
+    one_giver = (None, None, [1], *args[3:])  # no other giver to wait for: the search stops at n
+    monkeypatch.setattr(gh, "_search", search([0, 0, 0, 1]))
+    found, _ = gh.plan_handovers(*one_giver, params=gh.HandoverParams(alternatives=3))
+    assert [h.giver_index for h in found] == [0, 0, 0]
