@@ -11,14 +11,16 @@ Two kinds of pair:
 
 A pair is kept when the primary reaches its grasp, the secondary reaches its own, the grippers do not
 come within ``gap`` of each other, and the two arms in those configurations do not collide (arm against
-arm). Balance is the horizontal distance from the object's centre to the midpoint of the two contact
+arm). With a :class:`PairLift`, the pairs both arms can also lift the object from (some end pose of the
+lift that the task's planner samples, :mod:`bimanual_app.kinematics._lift`, within both arms' reach with their
+grasps) come before those they cannot. Balance is the horizontal distance from the object's centre to the midpoint of the two contact
 centres, relative to half their distance (0 = perfectly balanced); pairs above ``max_imbalance`` are
 dropped. Score: the mean of the two grasp scores, less half the imbalance.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -26,7 +28,7 @@ from ._arms import ArmGrasps, TwoArmCheck
 from ._collision import GripperCollider, grippers_collide
 from ._objects import ObjectGeometry, Support
 
-__all__ = ["JointPair", "joint_pairs", "spread_order"]
+__all__ = ["JointPair", "PairLift", "joint_pairs", "spread_order"]
 
 
 @dataclass
@@ -39,6 +41,67 @@ class JointPair:
     imbalance: float
     separation: float
     score: float
+    liftable: bool = True  # both arms can lift the object from it (False: only when checked, see PairLift)
+
+
+@dataclass
+class PairLift:
+    """Whether both arms can lift an object together from a pair of grasps: the end poses of the lift that
+    the task's planner samples (:func:`bimanual_app.kinematics._lift.lift_candidates`, here at the least lift
+    ``lift_min`` only: any higher is the planner's choice), each arm's IK for its grasp carried along them
+    (:func:`bimanual_app.kinematics._lift.arms_ik`, once per grasp, cached), and the pair passes when both arms
+    follow one of them.
+
+    solvers: arm name -> (IK solver with ``solve_many``, ``T_b_b1`` (4,4) the arm's base from b1);
+    centre: (3,) the object's centre in b1; up: (3,) the table normal in b1.
+    """
+
+    solvers: dict
+    centre: np.ndarray
+    up: np.ndarray
+    lift_min: float = 0.105
+    radius: float = 0.08
+    seeds: int = 1  # IK seeds per lift stage: the previous stage's solution (a continuation)
+    _reach: dict = field(default_factory=dict, repr=False)  # (arm, grasp index, pose) -> (C,) bool
+    _lifts: object = field(default=None, repr=False)  # the LiftCandidates
+
+    @classmethod
+    def for_arms(cls, arms: dict, centre: np.ndarray, up: np.ndarray, **kw) -> PairLift | None:
+        """From ``grasping.Arm`` objects whose reach filters have an IK ``solver``; None when one has not."""
+        from bimanual_app.transforms import inv_T
+
+        solvers = {n: (getattr(a.reach, "solver", None), inv_T(a.T_b1_b)) for n, a in arms.items()}
+        if any(s is None or not hasattr(s, "solve_many") for s, _ in solvers.values()):
+            return None
+        return cls(solvers, np.asarray(centre, dtype=np.float64), np.asarray(up, dtype=np.float64), **kw)
+
+    def _candidates(self):
+        from bimanual_app.kinematics._lift import lift_candidates
+
+        if self._lifts is None:
+            self._lifts = lift_candidates(self.centre, self.up, self.lift_min, self.lift_min, radius=self.radius,
+                                          n_heights=1)
+        return self._lifts
+
+    def reach(self, ag: ArmGrasps, i: int) -> np.ndarray:
+        """(C,) bool: along which lifts ``ag``'s arm carries its grasp ``i`` (:func:`~bimanual_app.kinematics._lift.
+        arms_ik` for that arm alone: the IK followed from the grasp's joint solution)."""
+        from bimanual_app.kinematics._lift import LiftArm, arms_ik
+
+        key = (ag.arm, int(ag.index[i]), ag.grasps.T_b1_g[i].tobytes())
+        if key not in self._reach:
+            solver, T_b_b1 = self.solvers[ag.arm]
+
+            def solve(T, Q0):
+                rs = solver.solve_many(T_b_b1 @ T, Q0, max_seeds=self.seeds)
+                return np.stack([r.q if r.success else q for r, q in zip(rs, Q0)]), np.array([r.success for r in rs])
+
+            arm = LiftArm(solve, None, solver.lower, solver.upper, np.asarray(ag.q[i], dtype=np.float64))
+            self._reach[key] = arms_ik({ag.arm: arm}, {ag.arm: ag.grasps.T_b1_g[i]}, self._candidates())[ag.arm][1]
+        return self._reach[key]
+
+    def __call__(self, primary: ArmGrasps, i: int, secondary: ArmGrasps, j: int) -> bool:
+        return bool(np.any(self.reach(primary, i) & self.reach(secondary, j)))
 
 
 def _contact_centres(ag: ArmGrasps) -> np.ndarray:
@@ -136,12 +199,14 @@ def _ranked_pairs(geo: ObjectGeometry, up: np.ndarray, primary: ArmGrasps, secon
 def joint_pairs(geo: ObjectGeometry, support: Support, primary: ArmGrasps, secondary: ArmGrasps,
                 collider: GripperCollider, check: TwoArmCheck | None, max_pairs: int = 5, gap: float = 0.02,
                 max_imbalance: float = 0.25, max_checks: int = 60, max_height_gap: float = 0.015,
-                min_spread: float = 0.4, distinct: float = 0.03) -> tuple[list[JointPair], dict]:
+                min_spread: float = 0.4, distinct: float = 0.03,
+                lift: PairLift | None = None) -> tuple[list[JointPair], dict]:
     """Balanced, reachable, collision-free pairs from each arm's reachable grasps of one kind: the best
     first, then the pairs whose two contacts are not both within ``distinct`` m of an earlier pair's (a
     pair that fails for where it holds the object is not followed by the same pair again), then the rest;
-    at most ``max_pairs``."""
-    stats = {"candidates": 0, "balanced": 0, "grippers_apart": 0, "arms_apart": 0}
+    at most ``max_pairs``. With ``lift``, the pairs both arms cannot lift the object from come after all
+    those they can (kept: the check is kinematic, the planner has the last word)."""
+    stats = {"candidates": 0, "balanced": 0, "grippers_apart": 0, "arms_apart": 0, "liftable": 0}
     if len(primary) == 0 or len(secondary) == 0:
         return [], stats
     kind = primary.grasps.kind
@@ -150,6 +215,7 @@ def joint_pairs(geo: ObjectGeometry, support: Support, primary: ArmGrasps, secon
                          stats)
     out: list[JointPair] = []
     similar: list[JointPair] = []
+    stuck: list[JointPair] = []  # the arms cannot lift the object from them
     for score, i, j, imb, sep in cand[:max_checks]:
         w1, w2 = primary.grasps.width[i], secondary.grasps.width[j]
         if grippers_collide(collider, primary.grasps.T_b1_g[i], w1, secondary.grasps.T_b1_g[j], w2, margin=gap,
@@ -165,10 +231,14 @@ def joint_pairs(geo: ObjectGeometry, support: Support, primary: ArmGrasps, secon
                 continue
         stats["arms_apart"] += 1
         pair = JointPair(kind, i, j, imb, sep, float(score))
+        if lift is not None and not lift(primary, i, secondary, j):
+            stuck.append(JointPair(kind, i, j, imb, sep, float(score), liftable=False))
+            continue
+        stats["liftable"] += 1
         near = any(np.linalg.norm(c1[i] - c1[p.i_primary]) < distinct and np.linalg.norm(c2[j] - c2[p.i_secondary]) < distinct
                    for p in out)
         (similar if near else out).append(pair)
         if len(out) >= max_pairs:
             break
     stats["distinct"] = len(out)
-    return (out + similar)[:max_pairs], stats
+    return (out + similar + stuck)[:max_pairs], stats

@@ -81,7 +81,7 @@ def _object_dict(op: ObjectPlan, T_b1_b2: np.ndarray | None, arms_checked: bool)
     for r, pair in enumerate(op.joint):
         p_ag, s_ag = op.pair_grasps(pair)
         ent = {"rank": r + 1, "kind": pair.kind, "score": pair.score, "imbalance": pair.imbalance,
-               "separation": pair.separation}
+               "separation": pair.separation, "liftable": bool(pair.liftable)}
         for arm, ag, k in (("primary", p_ag, pair.i_primary), ("secondary", s_ag, pair.i_secondary)):
             g = _grasp_fields(ag.grasps, k)
             g.update({"T_b2_g": _in_b2(ag.grasps.T_b1_g[k], T_b1_b2), "T_b_g": ag.T_b_g[k], "q": ag.q[k],

@@ -31,7 +31,7 @@ from ._collision import GripperCollider, SceneOctree
 from ._gripper import GripperModel
 from ._handover import Handover, HandoverParams, handover_givers, plan_handovers
 from ._inputs import SceneCloud
-from ._joint import JointPair, joint_pairs, spread_order
+from ._joint import JointPair, PairLift, joint_pairs, spread_order
 from ._objects import (
     ObjectGeometry,
     Support,
@@ -347,7 +347,7 @@ def _joint(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: 
     # the kind with the better best pair first
     kinds = [[p for p in pairs if p.kind == k][: params.max_joint_pairs] for k in ("push", "pinch")]
     kinds.sort(key=lambda ps: -ps[0].score if ps else np.inf)
-    plan.joint = kinds[0] + kinds[1]
+    plan.joint = [p for p in kinds[0] + kinds[1] if p.liftable] + [p for p in kinds[0] + kinds[1] if not p.liftable]
     if plan.mode == "joint" and not plan.joint:
         plan.notes.append("no balanced two-arm grasp that both arms reach without colliding"
                           f" ({len(push)} push contacts on its faces)")
@@ -358,6 +358,7 @@ def _joint_pairs(plan: ObjectPlan, support: Support, collider: GripperCollider, 
     """One round of ``_joint``: each arm's reachable push contacts and end pinches, and the pairs of them."""
     geo = plan.geometry
     pairs: list[JointPair] = []
+    lift = PairLift.for_arms(arms, geo.centre, support.up)  # pairs the arms can lift the object from first
     if len(push):
         for name, arm in arms.items():
             # each face gets its own reach budget; the faces that look towards this arm's base first
@@ -370,7 +371,7 @@ def _joint_pairs(plan: ObjectPlan, support: Support, collider: GripperCollider, 
         plan.stats["push_reach"] = {n: {"reachable": len(a), "tried": a.tried, "why_not": a.reasons}
                                     for n, a in plan.push_reach.items()}
         pp, plan.stats["joint_push"] = joint_pairs(geo, support, plan.push_reach["primary"], plan.push_reach["secondary"],
-                                                   collider, check, params.max_joint_pairs)
+                                                   collider, check, params.max_joint_pairs, lift=lift)
         pairs += pp
     if plan.grasps is not None and len(plan.grasps) and long_side >= params.joint_min_extent:
         # pinches towards the two ends (the single-arm ranking favours the middle): each half of the object
@@ -382,7 +383,8 @@ def _joint_pairs(plan: ObjectPlan, support: Support, collider: GripperCollider, 
             plan.pinch_reach[name] = reachable_by_group(g, arm, np.sign(s_ax), params.reach_tries, params.reach_want,
                                                         prefer=far)
         pp, plan.stats["joint_pinch"] = joint_pairs(geo, support, plan.pinch_reach["primary"],
-                                                    plan.pinch_reach["secondary"], collider, check, params.max_joint_pairs)
+                                                    plan.pinch_reach["secondary"], collider, check, params.max_joint_pairs,
+                                                    lift=lift)
         pairs += pp
     return pairs
 

@@ -6,13 +6,28 @@ Public API:
     IKSolver.solve_many(T_targets (N,4,4), q_current=None | (J,) | (N,J), ...) -> [IKResult] * N
              (the same results as N ``solve`` calls; all targets' seeds descend together, vectorised)
     solve_ik(robot, T_target, q_current=None, **kw) -> IKResult   (caches one IKSolver per robot and link)
+
+Two arms holding one object (``_lift``, used by the grasp stage and the joint-grasp planner):
+    lift_candidates(centre, up, lift, lift_min, ...) -> LiftCandidates   (sampled end poses of the object's lift)
+    arms_ik(arms {name: LiftArm}, S {name: T_b1_g}, candidates) -> {name: (Q, ok)}   (batched, staged IK)
+    lift_costs(candidates, ik, arms, terms=LIFT_COSTS) -> {term: (N,)};  rank_lifts(...) -> (K,) best first
 """
 
 from __future__ import annotations
 
 from bimanual_app.kinematics._ik import IKResult, IKSolver
+from bimanual_app.kinematics._lift import (
+    LIFT_COSTS,
+    LiftArm,
+    LiftCandidates,
+    arms_ik,
+    lift_candidates,
+    lift_costs,
+    rank_lifts,
+)
 
-__all__ = ["IKResult", "IKSolver", "solve_ik"]
+__all__ = ["IKResult", "IKSolver", "solve_ik", "LIFT_COSTS", "LiftArm", "LiftCandidates", "arms_ik",
+           "lift_candidates", "lift_costs", "rank_lifts"]
 
 _CACHE: dict[tuple[int, str | None], IKSolver] = {}
 

@@ -7,8 +7,9 @@ is complete: what the preview simulates is what the hardware would run.
 
 Joint grasp: reach both pre-grasps (12-DoF OMPL query) -> straight approach -> close (pinch) or squeeze
 (push: the open fingertips are driven ``press`` past the faces) -> lift: the *object's* motion is planned
-(straight up by ``lift``), each gripper's pose is that motion applied to its grasp, IK at every
-waypoint for both arms on one clock, the object's own clearance checked along it -> hold 2.3 s (checked)
+(its end pose chosen within both arms' reach, ``kinematics._lift``: up by ``lift`` down to LIFT_MIN, shifted and turned
+about the vertical where that brings it within reach), each gripper's pose is that motion applied to its
+grasp, IK at every waypoint for both arms on one clock, the object's own clearance checked along it -> hold 2.3 s (checked)
 -> place (the reverse) -> release -> retreat.
 
 Hand-over: (the secondary turns aside about its base when it stands in the primary's way) primary reaches,
@@ -17,7 +18,7 @@ to the transfer pose -> secondary reaches its pre-grasp (object attached to the 
 -> straight approach -> closes -> primary opens -> retreats 8 cm along its approach -> hold 2.3 s
 (checked: held by the secondary only).
 
-Each fallback ladder (a push pair's squeeze depth, the joint lift's height, a push pair's back-off, the
+Each fallback ladder (a push pair's squeeze depth, the joint lift's end poses in score order, a push pair's back-off, the
 secondary's make-way turn, the hand-over's lift and carry padding, the receiver's pre-grasp and its way
 there) is a list of named :class:`Strategy` tried in order by :func:`first_success`, each attempt
 testable on its own.
@@ -35,10 +36,13 @@ from ._grasps import GraspSpec, HandoverChoice, JointChoice
 from ._motion import CONTACT_MARGIN, OBJECT_PADDING, PlanFailure, TaskMotion, line_poses, translate_along
 from ._plan import Phase, TaskPlan
 
-__all__ = ["plan_joint_grasp", "plan_handover", "object_lifts", "LIFT", "HOLD_S"]
+__all__ = ["plan_joint_grasp", "plan_handover", "LIFT", "HOLD_S"]
 
 LIFT = 0.15  # m the joint grasp lifts the object (>= 10 cm needed)
 LIFT_MIN = 0.105  # m: the least lift it falls back to at the top of the arms' reach
+LIFT_RADIUS = 0.08  # m: the largest horizontal shift of the object's lift (towards where both arms reach it)
+LIFT_TRIES_PER_HEIGHT = 3  # straight lift paths tried at each sampled height, best first
+LIFT_IK_SEEDS = 1  # IK seeds per sampled lift pose and arm: the previous stage's solution only (continuation)
 RETREAT_UP = 0.08  # m of the fallback retreats of a push pair (straight up, or further back from the faces)
 # m: a push pair's approach stops this far out from the faces, and the squeeze starts there. The faces'
 # depth comes from the segment's points, which miss the last millimetres of an edge (a box's segment comes
@@ -86,69 +90,6 @@ def _pre(motion: TaskMotion, g: GraspSpec) -> np.ndarray:
         if np.linalg.norm(T[:3, 3] - g.T_b1_g[:3, 3]) < 2 * g.pre_dist + 0.02:
             return T
     return translate_along(g.T_b1_g, g.T_b1_g[:3, 2], -g.pre_dist)
-
-
-def object_lifts(motion: TaskMotion, up: np.ndarray, lift: float) -> list[tuple[np.ndarray, str]]:
-    """The object's possible lifts, in order of preference: ``(rigid motions (K,4,4), how)`` whose swept
-    object stays clear of the scene map (the arms' reach is the caller's to check).
-
-    Tried in order: straight up; up while moving 3 cm, then 6 cm, horizontally away from the nearest
-    obstacle around the object (a neighbour it touches); up while moving 3 cm, then 6 cm, towards the
-    line between the two bases (nearer both arms); up while moving 4 cm, then 8 cm, towards the midpoint
-    of the bases (an object near one base is at the far end of the other's reach); each horizontal move
-    reached over the first half of the lift. Raises PlanFailure when none is clear.
-    """
-    from scipy.spatial import cKDTree
-
-    P = motion.object_points
-    centre = P.mean(axis=0)
-    cand = [(np.zeros(3), "straight up")]
-    pts = motion.cut_map.points
-    near = pts[cKDTree(P).query(pts, k=1, distance_upper_bound=0.06)[0] < np.inf]
-    h = near @ up
-    near = near[h > (P @ up).min() + 0.01]  # not the table under it
-    if len(near):
-        d = centre - near.mean(axis=0)
-        d = d - (d @ up) * up
-        if np.linalg.norm(d) > 1e-6:
-            d /= np.linalg.norm(d)
-            cand += [(0.03 * d, "up and 3 cm away from its neighbour"), (0.06 * d, "up and 6 cm away from its neighbour")]
-    # towards the line between the two bases: nearer both arms, where an arm at the top of its reach
-    # can follow the lift
-    b2 = motion.setup.T_b1_b("secondary")[:3, 3]
-    line = b2 - (b2 @ up) * up
-    if np.linalg.norm(line) > 1e-6:
-        u = line / np.linalg.norm(line)
-        c = centre - (centre @ up) * up
-        off = c - (c @ u) * u  # from the line to the object, horizontally
-        dist = float(np.linalg.norm(off))
-        for k in (0.03, 0.06):
-            if dist > 0.01 and (k == 0.03 or dist > 0.03):  # the line nearer than 3 cm: one step, onto it
-                step = -off / dist * min(k, dist)
-                cand.append((step, f"up and {np.linalg.norm(step) * 100:.0f} cm towards the line between the bases"))
-        # towards the midpoint of the bases: an object near one base is at the far end of the other's reach
-        mid = 0.5 * line
-        to_mid = mid - c
-        n_mid = float(np.linalg.norm(to_mid))
-        if n_mid > 0.01:
-            for k in (0.04, 0.08):
-                if k == 0.08 and n_mid <= 0.04:
-                    continue  # the midpoint nearer than 4 cm: one step, onto it
-                step = to_mid / n_mid * min(k, n_mid)
-                cand.append((step, f"up and {np.linalg.norm(step) * 100:.0f} cm towards the midpoint of the bases"))
-    n = max(2, int(np.ceil(lift / 0.01)) + 1)
-    s = np.linspace(0.0, 1.0, n)
-    first, out = None, []
-    for shift, how in cand:
-        T = np.stack([np.eye(4)] * n)
-        T[:, :3, 3] = (s * lift)[:, None] * up + np.minimum(2 * s, 1.0)[:, None] * shift
-        problems = motion.object_clear(T, up=up)
-        if not problems:
-            out.append((T, how))
-        first = first or (problems[0] if problems else None)
-    if not out:
-        raise PlanFailure("validation", first)
-    return out
 
 
 def _face_gap(motion: TaskMotion, g: GraspSpec, lateral: float = 0.03, cap: float = 0.02) -> float:
@@ -447,26 +388,85 @@ def _joint_grip(P: _Pair, plan: TaskPlan, touch: dict) -> dict:
     return S
 
 
-def _lift_strategies(P: _Pair, S: dict, q: dict, lift: float) -> list[Strategy]:
-    """The joint lift's heights, in order: ``lift``, then less near the top of the reach, down to LIFT_MIN
-    (5 mm over the 10 cm needed). Each attempt tries the object's lifts of that height (:func:`object_lifts`)
-    in order and returns ``(trajectories, object motion (K,4,4), how, height)`` of the first both arms can
-    follow; it fails with the first reason when none is."""
+def _lift_arms(motion: TaskMotion, q: dict) -> dict:
+    """Both arms for the lift search (:class:`~bimanual_app.kinematics._lift.LiftArm`) holding the object at ``q`` (arm -> (J,)):
+    batched IK of gripper targets in b1, each from its own seed (``LIFT_IK_SEEDS``: that seed only, so
+    the solution continues the seed's IK branch), and the gripper frame's Jacobian (Pinocchio, LOCAL)."""
+    import pinocchio as pin
 
-    def follow(T_moves):
+    from bimanual_app.kinematics._lift import LiftArm
+
+    out = {}
+    for a in ARMS:
+        solver = motion.setup.ik_solver(a)
+        T_b_b1 = np.linalg.inv(motion.setup.T_b1_b(a))
+
+        def solve(T, Q0, solver=solver, T_b_b1=T_b_b1):
+            motion.stats["ik_calls"] += len(T)
+            rs = solver.solve_many(T_b_b1 @ T, Q0, n_solutions=1, max_seeds=LIFT_IK_SEEDS)
+            return np.stack([r.q if r.success else q0 for r, q0 in zip(rs, Q0)]), np.array([r.success for r in rs])
+
+        def jacobian(Q, solver=solver):
+            data = solver.model.createData()
+            return np.stack([pin.computeFrameJacobian(solver.model, data, qi, solver.fid, pin.LOCAL) for qi in Q])
+
+        out[a] = LiftArm(solve, jacobian, solver.lower, solver.upper, np.asarray(q[a], dtype=np.float64))
+    return out
+
+
+def _lift_strategies(P: _Pair, S: dict, q: dict, lift: float) -> Iterable[Strategy]:
+    """The object's lifts, best first: end poses of the lift sampled (:func:`~bimanual_app.kinematics._lift.lift_candidates`:
+    ``lift`` down to LIFT_MIN, shifted up to LIFT_RADIUS, turned about ``up``), both arms' IK followed
+    along all of them in one batch per stage (:func:`~bimanual_app.kinematics._lift.arms_ik`), the ones both arms follow ranked by
+    the named costs of ``kinematics._lift.LIFT_COSTS``; those
+    whose swept object is clear of the map are tried with the straight path both arms follow, at most
+    LIFT_TRIES_PER_HEIGHT at each height (failures at one height share their cause: the top of an arm's
+    reach). Each attempt returns ``(trajectories, object motion (K,4,4), how, height)``. Raises PlanFailure
+    when both arms follow none of the lifts, or every one they follow sweeps the object through the map."""
+    from bimanual_app.kinematics._lift import arms_ik, lift_candidates, lift_costs, object_motion, rank_lifts
+
+    c = lift_candidates(P.motion.object_points.mean(axis=0), P.up, lift, min(LIFT_MIN, lift), radius=LIFT_RADIUS)
+    arms = _lift_arms(P.motion, q)
+    ik = arms_ik(arms, S, c)
+    order = rank_lifts(c, ik, lift_costs(c, ik, arms))
+    if not len(order):
+        short = [a for a in ARMS if not ik[a][1].any()]
+        who = f"the {' and '.join(short)} arm" if short else "the two arms together"
+        raise PlanFailure("reach", f"{who} cannot follow any lift of the object with the grasps "
+                                   f"({len(c)} tried: {c.height.min() * 100:.1f}-{lift * 100:.0f} cm up, "
+                                   f"shifted up to {LIFT_RADIUS * 100:.0f} cm, turned up to "
+                                   f"{np.degrees(np.abs(c.yaw).max()):.0f} deg)")
+
+    def attempt(T_moves, i):
         with P.motion.context("cut", openings=P.opening_hold):
-            return P.motion.cartesian({a: T_moves @ S[a] for a in ARMS}, q), T_moves
+            tr = P.motion.cartesian({a: T_moves @ S[a] for a in ARMS}, q)
+        return tr, T_moves, _lift_name(c, i), float(c.height[i])
 
-    def attempt(h):
-        try:
-            how, (tr, T_moves) = first_success(Strategy(how, partial(follow, T))
-                                               for T, how in object_lifts(P.motion, P.up, h))
-        except StrategiesFailed as e:
-            raise e.first from None
-        return tr, T_moves, how, h
+    tries: dict = {}
+    first_clash = None
+    for i in order:
+        h = round(float(c.height[i]), 4)
+        if tries.get(h, 0) >= LIFT_TRIES_PER_HEIGHT:
+            continue
+        T_moves = object_motion(c, i)
+        clash = P.motion.object_clear(T_moves, up=P.up)
+        if clash:
+            first_clash = first_clash or clash[0]
+            continue
+        tries[h] = tries.get(h, 0) + 1
+        yield Strategy(_lift_name(c, i), partial(attempt, T_moves, i))
+    if not tries:  # every lift both arms reach sweeps the object through the scene
+        raise PlanFailure("validation", first_clash or "no lift to try")
 
-    return [Strategy(f"lift {h * 100:.1f} cm", partial(attempt, h))
-            for h in (lift, 0.85 * lift, max(0.74 * lift, 0.11), LIFT_MIN)]
+
+def _lift_name(c, i: int) -> str:
+    """How candidate ``i`` of :class:`~bimanual_app.kinematics._lift.LiftCandidates` moves the object, in words."""
+    parts = [f"up {c.height[i] * 100:.1f} cm"]
+    if np.linalg.norm(c.shift[i]) > 1e-4:
+        parts.append(f"{np.linalg.norm(c.shift[i]) * 100:.0f} cm sideways")
+    if abs(c.yaw[i]) > 1e-6:
+        parts.append(f"turned {np.degrees(c.yaw[i]):.0f} deg about the vertical")
+    return ", ".join(parts)
 
 
 def _joint_lift(P: _Pair, plan: TaskPlan, S: dict, lift: float) -> np.ndarray:
