@@ -76,7 +76,7 @@ class PairLift:
         return cls(solvers, np.asarray(centre, dtype=np.float64), np.asarray(up, dtype=np.float64), **kw)
 
     def _candidates(self):
-        from bimanual_app.kinematics._lift import lift_candidates
+        from bimanual_app.kinematics import lift_candidates
 
         if self._lifts is None:
             self._lifts = lift_candidates(self.centre, self.up, self.lift_min, self.lift_min, radius=self.radius,
@@ -86,7 +86,7 @@ class PairLift:
     def reach(self, ag: ArmGrasps, i: int) -> np.ndarray:
         """(C,) bool: along which lifts ``ag``'s arm carries its grasp ``i`` (:func:`~bimanual_app.kinematics._lift.
         arms_ik` for that arm alone: the IK followed from the grasp's joint solution)."""
-        from bimanual_app.kinematics._lift import LiftArm, arms_ik
+        from bimanual_app.kinematics import LiftArm, arms_ik
 
         key = (ag.arm, int(ag.index[i]), ag.grasps.T_b1_g[i].tobytes())
         if key not in self._reach:

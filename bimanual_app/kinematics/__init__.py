@@ -11,6 +11,7 @@ Two arms holding one object (``_lift``, used by the grasp stage and the joint-gr
     lift_candidates(centre, up, lift, lift_min, ...) -> LiftCandidates   (sampled end poses of the object's lift)
     arms_ik(arms {name: LiftArm}, S {name: T_b1_g}, candidates) -> {name: (Q, ok)}   (batched, staged IK)
     lift_costs(candidates, ik, arms, terms=LIFT_COSTS) -> {term: (N,)};  rank_lifts(...) -> (K,) best first
+    object_motion(candidates, i) -> (K, 4, 4)   (the object's motion along candidate i, 1 cm steps)
 """
 
 from __future__ import annotations
@@ -23,11 +24,12 @@ from bimanual_app.kinematics._lift import (
     arms_ik,
     lift_candidates,
     lift_costs,
+    object_motion,
     rank_lifts,
 )
 
 __all__ = ["IKResult", "IKSolver", "solve_ik", "LIFT_COSTS", "LiftArm", "LiftCandidates", "arms_ik",
-           "lift_candidates", "lift_costs", "rank_lifts"]
+           "lift_candidates", "lift_costs", "object_motion", "rank_lifts"]
 
 _CACHE: dict[tuple[int, str | None], IKSolver] = {}
 

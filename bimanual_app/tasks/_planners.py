@@ -394,7 +394,7 @@ def _lift_arms(motion: TaskMotion, q: dict) -> dict:
     the solution continues the seed's IK branch), and the gripper frame's Jacobian (Pinocchio, LOCAL)."""
     import pinocchio as pin
 
-    from bimanual_app.kinematics._lift import LiftArm
+    from bimanual_app.kinematics import LiftArm
 
     out = {}
     for a in ARMS:
@@ -423,7 +423,7 @@ def _lift_strategies(P: _Pair, S: dict, q: dict, lift: float) -> Iterable[Strate
     LIFT_TRIES_PER_HEIGHT at each height (failures at one height share their cause: the top of an arm's
     reach). Each attempt returns ``(trajectories, object motion (K,4,4), how, height)``. Raises PlanFailure
     when both arms follow none of the lifts, or every one they follow sweeps the object through the map."""
-    from bimanual_app.kinematics._lift import arms_ik, lift_candidates, lift_costs, object_motion, rank_lifts
+    from bimanual_app.kinematics import arms_ik, lift_candidates, lift_costs, object_motion, rank_lifts
 
     c = lift_candidates(P.motion.object_points.mean(axis=0), P.up, lift, min(LIFT_MIN, lift), radius=LIFT_RADIUS)
     arms = _lift_arms(P.motion, q)
