@@ -697,23 +697,27 @@ def _only_pointmaps(args, seeds: list[int], tmp: Path, t_start: float) -> int:
     T = [_point_map_target(pm_rows)] + hard_targets
     L += ["", "## Targets (point maps)", "", "| target | measured | result |", "| --- | --- | --- |"]
     L += [f"| {n} | {d} | {'PASS' if ok else 'FAIL'} |" for n, ok, d in T]
-    L += ["", f"Total bench time {time.perf_counter() - t_start:.0f} s."]
-    text = "\n".join(L) + "\n"
+    return _emit_section(args, L, tmp, t_start)
+
+
+def _emit_section(args, L: list[str], tmp: Path, t_start: float) -> int:
+    """Print a ``--only`` section's lines ``L`` with the total time, save them with an explicit ``--out``,
+    remove the scratch folder."""
+    import shutil
+
+    text = "\n".join(L + ["", f"Total bench time {time.perf_counter() - t_start:.0f} s."]) + "\n"
     print(text)
     if args.out and not args.no_save:
         from calibration._files import write_text
 
         write_text(args.out, text)
         log(f"saved {args.out}")
-    import shutil
-
     shutil.rmtree(tmp, ignore_errors=True)
     return 0
 
 
 def _only_pivot(args, seeds: list[int], draws: int, tmp: Path, t_start: float) -> int:
     """``--only pivot``: the rows of pose errors turning about a point ahead of the camera (poses only)."""
-    import shutil
 
     from bimanual_app.synth import make_synthetic_scene
 
@@ -724,16 +728,7 @@ def _only_pivot(args, seeds: list[int], draws: int, tmp: Path, t_start: float) -
                                                   progress=False, preview=False)))
     cmd = "nice .venv/bin/python bench/calibration.py --only pivot" + (" --quick" if args.quick else "")
     L = [f"Command: `{cmd}`", "", f"Seeds {seeds}, {draws} noise draw(s) per seed. Machine: 2 shared CPU cores."]
-    L += pivot_lines(geos, seeds, draws) + ["", f"Total bench time {time.perf_counter() - t_start:.0f} s."]
-    text = "\n".join(L) + "\n"
-    print(text)
-    if args.out and not args.no_save:
-        from calibration._files import write_text
-
-        write_text(args.out, text)
-        log(f"saved {args.out}")
-    shutil.rmtree(tmp, ignore_errors=True)
-    return 0
+    return _emit_section(args, L + pivot_lines(geos, seeds, draws), tmp, t_start)
 
 
 def _finish_full(args, L, T, target, none_rows, store, k9, ct, cal_med, load0, pm_rows, hard_targets, tmp, t_start) -> int:
