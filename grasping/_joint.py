@@ -91,12 +91,7 @@ class PairLift:
         key = (ag.arm, int(ag.index[i]), ag.grasps.T_b1_g[i].tobytes())
         if key not in self._reach:
             solver, T_b_b1 = self.solvers[ag.arm]
-
-            def solve(T, Q0):
-                rs = solver.solve_many(T_b_b1 @ T, Q0, max_seeds=self.seeds)
-                return np.stack([r.q if r.success else q for r, q in zip(rs, Q0)]), np.array([r.success for r in rs])
-
-            arm = LiftArm(solve, None, solver.lower, solver.upper, np.asarray(ag.q[i], dtype=np.float64))
+            arm = LiftArm.from_solver(solver, T_b_b1, ag.q[i], self.seeds)
             self._reach[key] = arms_ik({ag.arm: arm}, {ag.arm: ag.grasps.T_b1_g[i]}, self._candidates())[ag.arm][1]
         return self._reach[key]
 

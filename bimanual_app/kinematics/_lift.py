@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bimanual_app.transforms import check_shape
+from bimanual_app.transforms import check_shape, so3_exp
 
 __all__ = ["LiftCandidates", "LiftArm", "LiftCost", "LIFT_COSTS", "lift_candidates", "along", "object_motion", "arms_ik",
            "lift_costs", "rank_lifts"]
@@ -46,16 +46,9 @@ class LiftCandidates:
         return len(self.height)
 
 
-def _rot_about(up: np.ndarray, angles: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) rotations by ``angles`` (N,) about the unit axis ``up`` (Rodrigues)."""
-    K = np.array([[0.0, -up[2], up[1]], [up[2], 0.0, -up[0]], [-up[1], up[0], 0.0]])
-    a = np.asarray(angles, dtype=np.float64)[:, None, None]
-    return np.eye(3) + np.sin(a) * K + (1.0 - np.cos(a)) * (K @ K)
-
-
 def _motion(centre: np.ndarray, up: np.ndarray, height: np.ndarray, shift: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     """(N, 4, 4): turn by ``yaw`` about ``up`` through ``centre``, then translate by ``height * up + shift``."""
-    R = _rot_about(up, yaw)
+    R = so3_exp(np.asarray(yaw, dtype=np.float64)[:, None] * up)  # turns about ``up``
     T = np.zeros((len(height), 4, 4))
     T[:, :3, :3] = R
     T[:, :3, 3] = centre - R @ centre + height[:, None] * up + shift
@@ -119,6 +112,29 @@ class LiftArm:
     lower: np.ndarray
     upper: np.ndarray
     q0: np.ndarray
+
+    @classmethod
+    def from_solver(cls, solver, T_b_b1: np.ndarray, q0: np.ndarray, max_seeds: int = 1,
+                    on_solve: Callable[[int], None] | None = None) -> LiftArm:
+        """An arm on an :class:`~bimanual_app.kinematics.IKSolver` of its gripper frame, whose base is
+        ``T_b_b1`` (4,4) from b1: each target solved by ``solve_many`` from its own seed with ``max_seeds``
+        seeds (1: the seed only, so the solution continues the seed's IK branch; a failed lane keeps its
+        seed), and the frame's Jacobian (Pinocchio, LOCAL). ``on_solve(n)`` is told of every n targets."""
+        import pinocchio as pin
+
+        T_b_b1 = check_shape("T_b_b1", np.asarray(T_b_b1, dtype=np.float64), (4, 4))
+
+        def solve(T, Q0):
+            if on_solve is not None:
+                on_solve(len(T))
+            rs = solver.solve_many(T_b_b1 @ T, Q0, max_seeds=max_seeds)
+            return np.stack([r.q if r.success else q for r, q in zip(rs, Q0)]), np.array([r.success for r in rs])
+
+        def jacobian(Q):
+            data = solver.model.createData()
+            return np.stack([pin.computeFrameJacobian(solver.model, data, q, solver.fid, pin.LOCAL) for q in Q])
+
+        return cls(solve, jacobian, solver.lower, solver.upper, np.asarray(q0, dtype=np.float64))
 
 
 def arms_ik(arms: dict, S: dict, c: LiftCandidates, stages: tuple = (0.25, 0.5, 0.75, 1.0),

@@ -389,29 +389,16 @@ def _joint_grip(P: _Pair, plan: TaskPlan, touch: dict) -> dict:
 
 
 def _lift_arms(motion: TaskMotion, q: dict) -> dict:
-    """Both arms for the lift search (:class:`~bimanual_app.kinematics._lift.LiftArm`) holding the object at ``q`` (arm -> (J,)):
-    batched IK of gripper targets in b1, each from its own seed (``LIFT_IK_SEEDS``: that seed only, so
-    the solution continues the seed's IK branch), and the gripper frame's Jacobian (Pinocchio, LOCAL)."""
-    import pinocchio as pin
-
+    """Both arms for the lift search (:class:`~bimanual_app.kinematics.LiftArm`) holding the object at ``q``
+    (arm -> (J,)), on the task's IK solvers with ``LIFT_IK_SEEDS`` seeds per target; their solves count in
+    ``motion.stats["ik_calls"]``."""
     from bimanual_app.kinematics import LiftArm
 
-    out = {}
-    for a in ARMS:
-        solver = motion.setup.ik_solver(a)
-        T_b_b1 = np.linalg.inv(motion.setup.T_b1_b(a))
+    def count(n):
+        motion.stats["ik_calls"] += n
 
-        def solve(T, Q0, solver=solver, T_b_b1=T_b_b1):
-            motion.stats["ik_calls"] += len(T)
-            rs = solver.solve_many(T_b_b1 @ T, Q0, n_solutions=1, max_seeds=LIFT_IK_SEEDS)
-            return np.stack([r.q if r.success else q0 for r, q0 in zip(rs, Q0)]), np.array([r.success for r in rs])
-
-        def jacobian(Q, solver=solver):
-            data = solver.model.createData()
-            return np.stack([pin.computeFrameJacobian(solver.model, data, qi, solver.fid, pin.LOCAL) for qi in Q])
-
-        out[a] = LiftArm(solve, jacobian, solver.lower, solver.upper, np.asarray(q[a], dtype=np.float64))
-    return out
+    return {a: LiftArm.from_solver(motion.setup.ik_solver(a), np.linalg.inv(motion.setup.T_b1_b(a)), q[a],
+                                   LIFT_IK_SEEDS, on_solve=count) for a in ARMS}
 
 
 def _lift_strategies(P: _Pair, S: dict, q: dict, lift: float) -> Iterable[Strategy]:
