@@ -60,6 +60,15 @@ def pointmap_intrinsics(pts_c: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return np.array([fx, fy, cx, cy])
 
 
+def points_in_cameras(P_w: np.ndarray, T_w_c: np.ndarray) -> np.ndarray:
+    """(V, H, W, 3) each view's points ``P_w`` (V, H, W, 3) float64, world frame, in its own camera frame:
+    ``p_c = R^T (p_w - t)`` for ``T_w_c`` (V, 4, 4), one BLAS matmul per view (an einsum over these shapes is
+    about 10x slower)."""
+    V = len(P_w)
+    R, t = np.ascontiguousarray(T_w_c[:, :3, :3]), T_w_c[:, :3, 3]
+    return np.matmul((P_w - t[:, None, None, :]).reshape(V, -1, 3), R).reshape(P_w.shape)
+
+
 def _filter3(Z: np.ndarray, reduce) -> np.ndarray:
     """The 3x3 minimum or maximum (``reduce``: ``np.minimum`` / ``np.maximum``) of each (H, W) slice of
     ``Z`` (V, H, W), edges repeated: ``scipy.ndimage``'s ``minimum_filter`` / ``maximum_filter`` with
@@ -109,7 +118,7 @@ def free_space_outliers(pts3d_w: np.ndarray, T_w_c: np.ndarray, valid: np.ndarra
     V, H, W = P.shape[:3]
     T = check_shape("T_w_c", np.asarray(T_w_c, dtype=np.float64), (V, 4, 4))
     R, t = np.ascontiguousarray(T[:, :3, :3]), np.ascontiguousarray(T[:, :3, 3])  # contiguous: BLAS matmul
-    Pc = np.matmul((P - t[:, None, None, :]).reshape(V, -1, 3), R).reshape(P.shape)  # p_c = R^T (p_w - t)
+    Pc = points_in_cameras(P, T)
     ok = np.all(np.isfinite(Pc), axis=-1) & (np.nan_to_num(Pc[..., 2], nan=-1.0) > 0)
     if valid is not None:
         ok &= check_shape("valid", np.asarray(valid, dtype=bool), (V, H, W))

@@ -17,6 +17,8 @@ import numpy as np
 
 from bimanual_app.transforms import check_shape
 
+from ._fusion import points_in_cameras
+
 __all__ = ["wrist_rig_pixels"]
 
 MIN_AGREE = 0.6  # fraction of an arm's views in which a pixel must sit at the same camera-frame point
@@ -56,9 +58,7 @@ def wrist_rig_pixels(pts3d_w: np.ndarray, T_w_c: np.ndarray, min_agree: float = 
     V, H, W = P.shape[:3]
     if V < 3:
         return np.zeros((H, W), dtype=bool)
-    R, t = np.ascontiguousarray(T[:, :3, :3]), T[:, :3, 3]
-    # p_c = R^T (p_w - t), one BLAS matmul per view (an einsum over these shapes is about 10x slower)
-    Pc = np.matmul((P.astype(np.float64) - t[:, None, None, :]).reshape(V, -1, 3), R).reshape(P.shape)
+    Pc = points_in_cameras(P.astype(np.float64), T)
     finite = np.all(np.isfinite(Pc), axis=-1)
     Pc = np.where(finite[..., None], Pc, np.nan)
     med = _nanmedian0(Pc)  # pixels empty in every view give NaN medians, which fail the test below
