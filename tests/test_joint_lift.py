@@ -105,6 +105,30 @@ def test_ranking_keeps_what_both_arms_reach_with_named_costs():
     assert costs["shift"][order[0]] > 0 and costs["height given up"][order[0]] == 0 and costs["turn"][order[0]] == 0
 
 
+def test_the_highest_lift_both_arms_reach_goes_first_even_with_less_joint_room():
+    """The task needs the object 10 cm up, held; a lift planned just past that leaves nothing for the object
+    to sag in the grippers. Here every lift is reached, but the higher the lift the nearer a joint comes to
+    its limit: the full lift still ranks first, and the lower ones stay behind it as fallbacks."""
+    c = lift_candidates(CENTRE, UP, 0.15, 0.105, radius=0.08, yaws=(0.0,))
+
+    def solve(T, seeds):  # joint 0 follows the height: 0.63 rad at 10.5 cm up, 0.9 rad (0.1 from its limit) at 15
+        return np.c_[(T[:, 2, 3] - CENTRE[2]) * 6.0, T[:, 1, 3]], np.ones(len(T), bool)
+
+    arm = LiftArm(solve, lambda Q: np.tile(np.eye(6)[:, :2], (len(Q), 1, 1)), np.full(2, -1.0), np.full(2, 1.0),
+                  np.zeros(2))
+    S = {"primary": np.eye(4), "secondary": np.eye(4)}
+    S["primary"][:3, 3] = CENTRE + [0.0, 0.05, 0.0]
+    S["secondary"][:3, 3] = CENTRE - [0.0, 0.05, 0.0]
+    arms = {"primary": arm, "secondary": arm}
+    ik = arms_ik(arms, S, c)
+    costs = lift_costs(c, ik, arms)
+    assert costs["joint-limit margin"][np.argmax(c.height)] > costs["joint-limit margin"][np.argmin(c.height)]
+    order = rank_lifts(c, ik, costs)
+    assert c.height[order[0]] == pytest.approx(0.15)
+    assert np.all(np.diff(c.height[order]) <= 1e-12)  # by height first, every height kept
+    assert len(order) == len(c)
+
+
 def test_arms_ik_checks_shapes():
     c = lift_candidates(CENTRE, UP, 0.15, 0.105)
     bad = LiftArm(lambda T, q: (np.zeros((3, 2)), np.ones(3, bool)), None, np.zeros(2), np.ones(2), np.zeros(2))

@@ -203,7 +203,11 @@ LIFT_COSTS = (
     LiftCost("joint travel", 0.3, _travel),
     LiftCost("shift", 0.5, lambda c, ik, arms: np.linalg.norm(c.shift, axis=1) / 0.1),
     LiftCost("turn", 0.5, lambda c, ik, arms: np.abs(c.yaw) / 0.4),
-    LiftCost("height given up", 1.0, lambda c, ik, arms: (c.height.max() - c.height) / 0.05),
+    # the height dominates: the task needs the object a set height up and held there, and an object sags in
+    # the grippers under its weight (by centimetres where the estimate was lighter than the object), so a
+    # lift planned just past that height leaves no room for the sag; the other terms choose within a height
+    # and the lower heights stay behind as fallbacks
+    LiftCost("height given up", 10.0, lambda c, ik, arms: (c.height.max() - c.height) / 0.05),
 )
 
 
