@@ -718,7 +718,6 @@ def _emit_section(args, L: list[str], tmp: Path, t_start: float) -> int:
 
 def _only_pivot(args, seeds: list[int], draws: int, tmp: Path, t_start: float) -> int:
     """``--only pivot``: the rows of pose errors turning about a point ahead of the camera (poses only)."""
-
     from bimanual_app.synth import make_synthetic_scene
 
     geos = []

@@ -79,13 +79,19 @@ def _fake_arm(x0: float):
                    np.zeros(2))
 
 
+def _grasps_beside_centre() -> dict:
+    """Both grippers (4, 4) 5 cm either side of CENTRE along y, frames aligned with b1."""
+    S = {"primary": np.eye(4), "secondary": np.eye(4)}
+    S["primary"][:3, 3] = CENTRE + [0.0, 0.05, 0.0]
+    S["secondary"][:3, 3] = CENTRE - [0.0, 0.05, 0.0]
+    return S
+
+
 def test_ranking_keeps_what_both_arms_reach_with_named_costs():
     """An end pose the arms reach only after a shift towards them is found; the straight-up lift is not
     among the ranked; every cost is a named (N,) term."""
     c = lift_candidates(CENTRE, UP, 0.15, 0.105, radius=0.08, yaws=(0.0,))
-    S = {"primary": np.eye(4), "secondary": np.eye(4)}
-    S["primary"][:3, 3] = CENTRE + [0.0, 0.05, 0.0]
-    S["secondary"][:3, 3] = CENTRE - [0.0, 0.05, 0.0]
+    S = _grasps_beside_centre()
     arms = {"primary": _fake_arm(CENTRE[0]), "secondary": _fake_arm(CENTRE[0] - 0.01)}
     ik = arms_ik(arms, S, c)
     costs = lift_costs(c, ik, arms)
@@ -116,9 +122,7 @@ def test_the_highest_lift_both_arms_reach_goes_first_even_with_less_joint_room()
 
     arm = LiftArm(solve, lambda Q: np.tile(np.eye(6)[:, :2], (len(Q), 1, 1)), np.full(2, -1.0), np.full(2, 1.0),
                   np.zeros(2))
-    S = {"primary": np.eye(4), "secondary": np.eye(4)}
-    S["primary"][:3, 3] = CENTRE + [0.0, 0.05, 0.0]
-    S["secondary"][:3, 3] = CENTRE - [0.0, 0.05, 0.0]
+    S = _grasps_beside_centre()
     arms = {"primary": arm, "secondary": arm}
     ik = arms_ik(arms, S, c)
     costs = lift_costs(c, ik, arms)
