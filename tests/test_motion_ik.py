@@ -69,6 +69,40 @@ def test_position_only_and_ee_link(piper):
     assert res.success and np.allclose(piper.fk(res.q), piper.fk(q), atol=2e-4)
 
 
+def test_given_seeds_replace_the_table_and_are_tried_in_order(piper, solver):
+    """A caller's own starts: the first that converges gives the answer (its branch), the table is not used."""
+    q_a = np.array([0.4, 1.2, -1.0, 0.5, 0.6, -0.3])
+    T = piper.fk_link(q_a, "gripper_tcp")
+    far = piper.lower + 0.05  # a start far from every branch of this pose
+    res = solver.solve(T, q_current=far, seeds=np.stack([far, q_a + 0.02]), max_seeds=3)
+    assert res.success and res.seeds <= 3
+    np.testing.assert_allclose(res.q, q_a, atol=2e-3)
+    # only the given seeds: one that cannot converge and nothing else fails rather than falling back on the table
+    res = solver.solve(T, q_current=far, seeds=far[None], max_seeds=16)
+    assert res.seeds == 2
+    assert not res.success or np.linalg.norm(res.q - far) < np.linalg.norm(q_a - far)
+    with pytest.raises(ValueError, match="seeds"):
+        solver.solve(T, seeds=np.zeros((2, 5)))
+
+
+def test_capture_planner_uses_the_one_ik_and_accepts_only_near_misses(piper):
+    """The synthetic capture's flange IK: the project's IKSolver from the planner's starts; a start that
+    stops short of the IK tolerance still counts within 5 mm / 2 degrees, and nothing beyond."""
+    from bimanual_app.synth._viewpoints import IK_ACCEPT, _flange_ik
+
+    flange = IKSolver(piper, link=piper.ee_link, max_iter=80)
+    q = np.array([0.3, 1.0, -0.8, 0.2, 0.5, 0.1])
+    T = piper.fk(q)
+    starts = np.stack([piper.neutral(), q + 0.1])
+    q_got, pe, re = _flange_ik(flange, T, starts)
+    assert q_got is not None and pe < 1e-4 and re < 1e-3
+    np.testing.assert_allclose(piper.fk(q_got), T, atol=2e-4)
+    T_far = T.copy()
+    T_far[:3, 3] *= 3.0  # out of reach
+    q_got, pe, re = _flange_ik(flange, T_far, starts)
+    assert q_got is None and (pe > IK_ACCEPT[0] or re > IK_ACCEPT[1])
+
+
 def test_unreachable_fails_fast_with_a_reason(solver):
     T = np.eye(4)
     T[:3, 3] = [1.5, 0.0, 0.2]

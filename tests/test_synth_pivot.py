@@ -111,8 +111,11 @@ def test_scene_with_a_pivot_differs_from_the_default_only_in_the_camera_centres(
     assert "pose_pivot_m" not in yaml.safe_load((d / "ground_truth.yaml").read_text())["noise"]
     rot = np.deg2rad(np.concatenate([gt["pose_errors"][a]["rot_deg"] for a in ("primary", "secondary")]))
     centre = np.linalg.norm(Tp[:, :3, 3] - Tt[:, :3, 3], axis=1)
-    assert np.median(centre) > 2 * np.median(np.linalg.norm(Td[:, :3, 3] - Tt[:, :3, 3], axis=1))
     assert np.all(centre <= 1.0 * rot + 0.05)  # the turn's move, plus the level's centre noise (10 mm RMS)
+    # what the pivot adds to each centre is the 1 m lever's chord: at most the rotation error x 1 m, and on
+    # average pi/4 of it over random axes (the chord shrinks as the axis nears the optical axis)
+    turn = np.linalg.norm(Tp[:, :3, 3] - Td[:, :3, 3], axis=1)
+    assert np.all(turn <= 1.0 * rot + 1e-9) and turn.sum() > 0.5 * rot.sum()
 
 
 def test_cli_option_and_bad_pivot(tmp_path, capsys):

@@ -1,15 +1,16 @@
 """Inverse kinematics by damped least squares on a Pinocchio model, with several seeds.
 
 One solve runs Levenberg-Marquardt style damped least squares on the SE(3) log error of the target link
-(the frame Jacobian in its LOCAL axes and ``log6``, as Pinocchio defines them), a
-full step (1.0, capped in size far from the solution), with joints that sit on a limit and are pushed
-outwards frozen for the step (an active set), and the result clipped to the limits. A seed whose error
-stops shrinking is abandoned early. Seeds, in order: the
-current configuration, then the configurations of a precomputed table of FK samples whose tool poses
-are nearest to the target (scipy cKDTree), then uniform random ones. Every converged, distinct solution
-is kept; they are returned sorted by joint-space distance to the current configuration, so the closest
-comes first. A target beyond the arm's reach (checked against the largest shoulder-to-tool distance of
-the table, with a margin) fails at once without iterating.
+(the frame Jacobian in its LOCAL axes and ``log6``, as Pinocchio defines them), a full step (1.0, capped in
+size far from the solution), with joints that sit on a limit and are pushed outwards frozen for the step (an
+active set), and the result clipped to the limits. A seed whose error stops shrinking is abandoned early.
+Seeds, in order: the current configuration, then the configurations of a precomputed table of FK samples
+whose tool poses are nearest to the target (scipy cKDTree), then uniform random ones; a caller with better
+starts of its own (the capture planner, which knows the arm's usual poses) passes them as ``seeds`` instead
+of the table's and the random ones. Every converged, distinct solution is kept; they are returned sorted by
+joint-space distance to the current configuration, so the closest comes first. A target beyond the arm's
+reach (checked against the largest shoulder-to-tool distance of the table, with a margin) fails at once
+without iterating.
 
 ``solve_many`` runs the seeds of many targets together, vectorised over (target, seed) lanes (``_dls``):
 the grasp planner's thousands of queries, most of them failing after every seed, cost one numpy pass per
@@ -23,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bimanual_app.transforms import check_T
+from bimanual_app.transforms import check_shape, check_T
 
 from ._dls import ChainKinematics, descend
 
@@ -171,21 +172,23 @@ class IKSolver:
 
     # ------------------------------------------------------------------ public
     def solve(self, T_target: np.ndarray, q_current: np.ndarray | None = None, position_only: bool = False,
-              n_solutions: int = 1, max_seeds: int = 16) -> IKResult:
+              n_solutions: int = 1, max_seeds: int = 16, seeds: np.ndarray | None = None) -> IKResult:
         """IK for ``T_target`` (4,4) = pose of ``self.link`` in the robot's base frame.
 
         ``position_only`` uses only ``T_target[:3, 3]``. Stops after ``n_solutions`` distinct solutions or
-        ``max_seeds`` seeds. Solutions lie within the joint limits.
+        ``max_seeds`` seeds. Solutions lie within the joint limits. ``seeds`` (S, J): the starts tried after
+        ``q_current``, in order, instead of the table's nearest poses and random ones.
         """
         T_target = np.asarray(T_target, dtype=np.float64)
         if T_target.shape != (4, 4) or not np.all(np.isfinite(T_target)):
             T_target = check_T("T_target", T_target)  # raises with the reason
-        return self.solve_many(T_target[None], q_current, position_only, n_solutions, max_seeds)[0]
+        return self.solve_many(T_target[None], q_current, position_only, n_solutions, max_seeds, seeds)[0]
 
     def solve_many(self, T_targets: np.ndarray, q_current: np.ndarray | None = None, position_only: bool = False,
-                   n_solutions: int = 1, max_seeds: int = 16) -> list[IKResult]:
+                   n_solutions: int = 1, max_seeds: int = 16, seeds: np.ndarray | None = None) -> list[IKResult]:
         """IK for each of ``T_targets`` (N, 4, 4), from ``q_current`` (J,) or one per target (N, J); one
-        ``IKResult`` per target, each the one ``solve`` gives for that target alone.
+        ``IKResult`` per target, each the one ``solve`` gives for that target alone. ``seeds`` (S, J), when
+        given, are every target's further starts (clipped to the limits; at most ``max_seeds - 1`` of them).
 
         The seeds of all targets descend together (``_dls.descend``): first every target's current
         configuration, then, for the targets that still lack solutions, all their remaining seeds at once
@@ -201,13 +204,21 @@ class IKSolver:
         if qc.shape != (n, J):
             raise ValueError(f"q_current: expected shape ({J},) or ({n}, {J}), got {np.shape(q_current)}")
         qc = np.clip(qc, self.lower, self.upper)
+        if seeds is not None:
+            seeds = check_shape("seeds", np.asarray(seeds, dtype=np.float64), (None, J))
         dist = np.linalg.norm(T[:, :3, 3] - self._shoulder, axis=1)
         far = dist > self.reach * 1.03 + 0.01
-        seeds: list[list[np.ndarray]] = [[qc[i]] for i in range(n)]
+        seeds_of: list[list[np.ndarray]] = [[qc[i]] for i in range(n)]  # per target, its starts in order
         runs: list[list[tuple]] = [[] for _ in range(n)]  # per target: (q, ep, er, iterations) per seed tried
-        self._run_lanes([(i, 0) for i in range(n) if not far[i]], seeds, runs, T, position_only, n_solutions)
+        self._run_lanes([(i, 0) for i in range(n) if not far[i]], seeds_of, runs, T, position_only, n_solutions)
         more = [i for i in range(n) if not far[i] and max_seeds > 1 and self._n_sols(runs[i]) < n_solutions]
-        if more:
+        if more and seeds is not None:
+            given = list(np.clip(seeds, self.lower, self.upper)[:max_seeds - 1])
+            for i in more:
+                seeds_of[i] += given
+            self._run_lanes([(i, k) for i in more for k in range(1, len(seeds_of[i]))], seeds_of, runs, T,
+                            position_only, n_solutions)
+        elif more:
             p = T[more, :3, 3]
             if position_only:
                 _, idx = self._pos_tree.query(p, k=self.n_near)
@@ -217,12 +228,12 @@ class IKSolver:
             idx = np.asarray(idx).reshape(len(more), -1)
             lanes = []
             for r, i in enumerate(more):
-                seeds[i] += [self._table_q[j] for j in idx[r]]
-                extra = max_seeds - len(seeds[i])
+                seeds_of[i] += [self._table_q[j] for j in idx[r]]
+                extra = max_seeds - len(seeds_of[i])
                 if extra > 0:  # beyond the table's nearest poses: uniform random seeds
-                    seeds[i] += list(self.robot.random_q(extra, rng=self._rng))
-                lanes += [(i, k) for k in range(1, min(max_seeds, len(seeds[i])))]
-            self._run_lanes(lanes, seeds, runs, T, position_only, n_solutions)
+                    seeds_of[i] += list(self.robot.random_q(extra, rng=self._rng))
+                lanes += [(i, k) for k in range(1, min(max_seeds, len(seeds_of[i])))]
+            self._run_lanes(lanes, seeds_of, runs, T, position_only, n_solutions)
         out = []
         for i in range(n):
             if far[i]:

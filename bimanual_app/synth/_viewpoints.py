@@ -18,7 +18,6 @@ import numpy as np
 from bimanual_app.transforms import inv_T, rotation_angle_between
 
 from ._camera import look_at
-from ._ik import solve_ik
 
 MIN_STATIC_FRACTION = 0.55  # share of a preview image that must show the table or objects
 MIN_OBJECT_FRACTION = 0.04  # share that must show objects
@@ -26,6 +25,7 @@ SHOULDER_HEIGHT = 0.123  # Piper joint 2 above the base (m)
 MAX_FLANGE_REACH = 0.62  # flange distance from the shoulder the Piper can reach (m): 0.285 + 0.251 + 0.091
 EXTRA_CANDIDATES = 4  # when too few views are feasible, keep drawing up to this many times the budget
 MIN_OBJECT_PIXELS = 12  # an object counts as seen with this many preview pixels (80 x 60); two must be seen
+IK_ACCEPT = (5e-3, np.deg2rad(2.0))  # a start that stops short of the IK tolerance still counts within this
 
 
 @dataclass
@@ -73,7 +73,10 @@ def plan_views(world, arm: int, n_views: int, rng: np.random.Generator, centre: 
         ``max_candidates`` draws (the budget is extended only while too few are feasible, so a layout that
         fills it draws exactly as many candidates as without the extension).
     """
+    from bimanual_app.kinematics import IKSolver
+
     robot = world.robot
+    solver = IKSolver(robot, link=robot.ee_link, max_iter=80)
     T_b1_b = world.T_b1_b[arm]
     T_b_b1 = inv_T(T_b1_b)
     T_c_e = inv_T(world.T_e_c[arm])
@@ -101,7 +104,7 @@ def plan_views(world, arm: int, n_views: int, rng: np.random.Generator, centre: 
         seeds = np.array([[np.arctan2(p[1], p[0]), 1.2, -1.2, 0.0, 0.6, 0.0],
                           [np.arctan2(p[1], p[0]), 1.8, -1.0, 0.0, -0.4, 0.0]])
         seeds = np.vstack([seeds, robot.random_q(3, rng, margin=0.2)])
-        q, pe, re = solve_ik(robot, T_b_e_want, seeds)
+        q, pe, re = _flange_ik(solver, T_b_e_want, seeds)
         if q is None:
             continue
         stats["reachable"] += 1
@@ -130,6 +133,17 @@ def plan_views(world, arm: int, n_views: int, rng: np.random.Generator, centre: 
     ang = rotation_angle_between(R[:, None], R[None, :])
     stats["min_pair_rotation_deg"] = float(np.rad2deg(ang[~np.eye(len(R), dtype=bool)].min())) if len(R) > 1 else 0.0
     return ordered, stats
+
+
+def _flange_ik(solver, T_b_e: np.ndarray, seeds: np.ndarray) -> tuple[np.ndarray | None, float, float]:
+    """``(q (J,) or None, position error m, rotation error rad)``: the flange at ``T_b_e`` (4, 4) from the starts
+    ``seeds`` (S, J), tried in order; the best attempt is taken when it is within ``IK_ACCEPT`` (the camera pose
+    is re-derived from q by forward kinematics, so a view is where the arm really is)."""
+    r = solver.solve(T_b_e, q_current=seeds[0], seeds=seeds[1:], max_seeds=len(seeds))
+    q = r.q if r.success else r.best_attempt
+    if q is None or r.pos_error > IK_ACCEPT[0] or r.rot_error > IK_ACCEPT[1]:
+        return None, r.pos_error, r.rot_error
+    return q, r.pos_error, r.rot_error
 
 
 def _farthest_rotations(views: list[View], n: int) -> list[int]:
