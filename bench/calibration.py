@@ -85,17 +85,6 @@ class Geometry:
         self.T_b1_c = [self.E[0] @ self.X[0], gt.T_b1_b2 @ self.E[1] @ self.X[1]]
 
 
-def _choose_outliers(rng, n: int, fraction: float) -> np.ndarray:
-    """As synth does: round(fraction * n) views (at least one when fraction > 0), never the first view."""
-    k = int(round(fraction * n))
-    if fraction > 0:
-        k = max(k, 1)
-    out = np.zeros(n, dtype=bool)
-    if k:
-        out[1 + rng.choice(n - 1, size=min(k, n - 1), replace=False)] = True
-    return out
-
-
 def emulate(geo: Geometry, n: int, noise: str, outliers: float, rng, pivot_m: float = 0.0) -> dict:
     """One trial's solver inputs and truth (synth's emulator on the first n views of each arm; ``pivot_m``:
     the pose errors turn about the point that far ahead of each camera, as ``make_synthetic_scene(...,
@@ -103,11 +92,11 @@ def emulate(geo: Geometry, n: int, noise: str, outliers: float, rng, pivot_m: fl
     from dataclasses import replace
 
     from bimanual_app.synth import NOISE_LEVELS
-    from bimanual_app.synth._emulator import perturb_poses, random_frame, to_frame_w
+    from bimanual_app.synth._emulator import choose_outliers, perturb_poses, random_frame, to_frame_w
     from bimanual_app.transforms import inv_T
 
     level = replace(NOISE_LEVELS[noise], pivot_m=pivot_m) if pivot_m else NOISE_LEVELS[noise]
-    masks = [_choose_outliers(rng, n, outliers) for _ in range(2)]
+    masks = [choose_outliers(rng, n, outliers) for _ in range(2)]
     reported = [perturb_poses(geo.T_b1_c[a][:n], level, masks[a], rng)[0] for a in range(2)]
     T_w_b1, scale = random_frame(rng)
     T_w_c = [to_frame_w(r, T_w_b1, scale) for r in reported]

@@ -26,6 +26,7 @@ __all__ = [
     "so3_exp",
     "so3_log",
     "skew",
+    "perpendicular_basis",
     "rotation_angle",
     "rotation_angle_between",
     "mean_rotation",
@@ -127,6 +128,16 @@ def skew(v: np.ndarray) -> np.ndarray:
     S[..., 1, 0], S[..., 1, 2] = v[..., 2], -v[..., 0]
     S[..., 2, 0], S[..., 2, 1] = -v[..., 1], v[..., 0]
     return S
+
+
+def perpendicular_basis(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors ``(e1, e2)`` (3,) that make ``(e1, e2, z)`` a right-handed orthonormal frame, for a unit
+    ``z`` (3,): ``e1 = z x x_b`` normalised, with the base x axis (the y axis when z is within 26 degrees of
+    x), and ``e2 = z x e1``."""
+    z = np.asarray(z, dtype=np.float64)
+    e1 = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(z, e1)
 
 
 def so3_exp(w: np.ndarray) -> np.ndarray:

@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bimanual_app.transforms import inv_T
+from bimanual_app.transforms import inv_T, perpendicular_basis
 
 from ._antipodal import GraspSet, rotate_about_approach
 from ._arms import Arm, ArmGrasps, TwoArmCheck, reachable_grasps
@@ -212,8 +212,7 @@ def _align(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     if s < 1e-9:
         if c > 0:
             return np.eye(3)
-        perp = np.cross(a, [1.0, 0, 0] if abs(a[0]) < 0.9 else [0, 1.0, 0])
-        return _axis_angle(perp / np.linalg.norm(perp), np.pi)
+        return _axis_angle(perpendicular_basis(a)[0], np.pi)
     return _axis_angle(v / s, float(np.arctan2(s, c)))
 
 

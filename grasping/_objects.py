@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bimanual_app.io_utils import Problem
+from bimanual_app.transforms import perpendicular_basis
 
 __all__ = ["Support", "ObjectGeometry", "estimate_support", "object_geometry", "check_graspable", "closed_geometry",
            "complete_by_symmetry", "complete_walls", "hides_table", "fit_circle", "refine_circle", "primitive_fit"]
@@ -73,10 +74,10 @@ class ObjectGeometry:
 
 
 def _perp_basis(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    a = np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = a - (a @ up) * up
-    e1 /= np.linalg.norm(e1)
-    return e1, np.cross(up, e1)
+    """(e1, e2) spanning the plane normal to unit ``up`` (3,), e1 the one nearer the base x axis: the shared
+    ``perpendicular_basis`` turned a quarter turn about up."""
+    e1, e2 = perpendicular_basis(up)
+    return -e2, e1
 
 
 def estimate_support(points: np.ndarray, labels: np.ndarray, table_plane: np.ndarray | None = None,

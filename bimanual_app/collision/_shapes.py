@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bimanual_app.transforms import perpendicular_basis
+
 __all__ = ["Shape", "ArmShapes", "arm_shapes", "bounding_capsule", "obb_of_points"]
 
 
@@ -119,9 +121,7 @@ def _frame_about_axis(P: np.ndarray, axis: np.ndarray) -> np.ndarray:
     import cv2
 
     z = axis / np.linalg.norm(axis)
-    x0 = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
-    x0 /= np.linalg.norm(x0)
-    y0 = np.cross(z, x0)
+    x0, y0 = perpendicular_basis(z)
     uv = np.stack([P @ x0, P @ y0], axis=1)
     (_, _), (_, _), ang = cv2.minAreaRect((uv - uv.mean(axis=0)).astype(np.float32))
     a = np.deg2rad(ang)

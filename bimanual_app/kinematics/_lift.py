@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bimanual_app.transforms import check_shape, so3_exp
+from bimanual_app.transforms import check_shape, perpendicular_basis, so3_exp
 
 __all__ = ["LiftCandidates", "LiftArm", "LiftCost", "LIFT_COSTS", "lift_candidates", "along", "object_motion", "arms_ik",
            "lift_costs", "rank_lifts"]
@@ -67,9 +67,7 @@ def lift_candidates(centre: np.ndarray, up: np.ndarray, lift: float, lift_min: f
     up = up / np.linalg.norm(up)
     if not 0.0 < lift_min <= lift:
         raise ValueError(f"lift_candidates: need 0 < lift_min <= lift, got {lift_min}, {lift}")
-    e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(up, e1)
+    e1, e2 = perpendicular_basis(up)
     ang = 2 * np.pi * np.arange(n_dirs) / n_dirs
     dirs = np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2
     rings = radius * np.arange(1, n_rings + 1) / n_rings

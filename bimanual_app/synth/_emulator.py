@@ -127,6 +127,18 @@ def perturb_poses(T_b1_c: np.ndarray, level: NoiseLevel, outlier: np.ndarray, rn
     return out, np.linalg.norm(w, axis=1), np.linalg.norm(dt, axis=1)
 
 
+def choose_outliers(rng: np.random.Generator, n: int, fraction: float) -> np.ndarray:
+    """(n,) bool: the views whose poses get gross errors: round(fraction * n) of them (at least one when
+    fraction > 0), never the first view."""
+    k = int(round(fraction * n))
+    if fraction > 0:
+        k = max(k, 1)
+    out = np.zeros(n, dtype=bool)
+    if k:
+        out[1 + rng.choice(n - 1, size=min(k, n - 1), replace=False)] = True
+    return out
+
+
 def to_frame_w(T_b1_c: np.ndarray, T_w_b1: np.ndarray, scale: float) -> np.ndarray:
     """Camera poses in the reconstruction frame (M, 4, 4): ``T_w_b1 @ T_b1_c`` with translations / scale."""
     T = check_T("T_w_b1", T_w_b1) @ check_T("T_b1_c", T_b1_c)

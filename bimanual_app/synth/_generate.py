@@ -26,6 +26,7 @@ from ._emulator import (
     MAP_NOISES,
     NOISE_LEVELS,
     MapNoise,
+    choose_outliers,
     map_depth_error,
     perturb_poses,
     point_map,
@@ -130,17 +131,6 @@ def _save_png(path: Path, arr: np.ndarray) -> None:
 
     path.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(arr).save(path, format="PNG", compress_level=6)
-
-
-def _choose_outliers(rng: np.random.Generator, n: int, fraction: float) -> np.ndarray:
-    """(n,) bool: round(fraction * n) views (at least one when fraction > 0), never the first view."""
-    k = int(round(fraction * n))
-    if fraction > 0:
-        k = max(k, 1)
-    out = np.zeros(n, dtype=bool)
-    if k:
-        out[1 + rng.choice(n - 1, size=min(k, n - 1), replace=False)] = True
-    return out
 
 
 def make_synthetic_scene(out_dir: str | os.PathLike, seed: int = 0, views: int = 8, objects: int = 5,
@@ -257,7 +247,7 @@ def _emulate_poses(plans: list, T_b1_b: list[np.ndarray], T_e_c: list[np.ndarray
                    outlier_frac: float, rngs: dict) -> _Poses:
     """True camera poses, the perturbed poses the emulator reports, and the random reconstruction frame."""
     T_b1_c_true = [np.array([T_b1_b[a] @ v.T_b_e @ T_e_c[a] for v in plans[a]]) for a in range(2)]
-    is_out = [_choose_outliers(rngs["outliers"], n_views, outlier_frac) for _ in range(2)]
+    is_out = [choose_outliers(rngs["outliers"], n_views, outlier_frac) for _ in range(2)]
     reported, rot_err, trans_err = [], [], []
     for a in range(2):
         Tr, re, te = perturb_poses(T_b1_c_true[a], level, is_out[a], rngs["poses"])
