@@ -47,8 +47,11 @@ def test_noise_is_measured_and_the_fit_is_a_fixed_point():
     a = fit_plane(P, 0.006, up=UP, seed=0)
     assert 0.0035 < a.sigma < 0.0045
     assert a.fraction > 0.95  # the refit window (2.5 sigma) holds what RANSAC's 6 mm cut off
-    b = fit_plane(P, 0.006, up=UP, seed=5)
-    assert np.array_equal(a.normal, b.normal) and a.offset == b.offset  # the same plane whatever the seed
+    # the same plane whatever the seed (or Open3D's threads, which reorder RANSAC's draws under load): the
+    # refit's fixed point can differ by a point on the window's edge, 1e-6 here, not RANSAC's ~1e-4
+    for seed in range(1, 9):
+        b = fit_plane(P, 0.006, up=UP, seed=seed)
+        assert abs(a.normal @ b.normal) > 1 - 1e-10 and abs(abs(a.offset) - abs(b.offset)) < 1e-5
 
 
 def test_uniform_sample_spreads_one_point_per_voxel():
