@@ -98,15 +98,14 @@ def estimate_support(points: np.ndarray, labels: np.ndarray, table_plane: np.nda
         return oriented(table_plane[:3], table_plane[3], "segments table_plane")
     table = points[labels < 0]
     if len(table) >= 50:
-        import open3d as o3d
+        from segmentation import fit_plane
 
-        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(table))
-        o3d.utility.random.seed(seed)
-        (a, b, c, d), inl = pc.segment_plane(distance_threshold=0.005, ransac_n=3, num_iterations=200)
-        n = np.array([a, b, c])
-        # a plane through the background that is not roughly horizontal in b1 is not the table
-        if len(inl) >= 0.3 * len(table) and abs(n[2]) / np.linalg.norm(n) > 0.8:
-            return oriented(n, d, "RANSAC plane of the table points")
+        # the project's one plane fitter; a plane through the background that is not roughly horizontal in b1
+        # (normal within 37 degrees of z), or that holds under 30 % of it, is not the table
+        fit = fit_plane(table, 0.005, up=np.array([0.0, 0.0, 1.0]), cos_level=0.8, level_only=True,
+                        iterations=200, min_points=50, seed=seed)
+        if fit is not None and fit.support >= 0.3 * len(table):
+            return oriented(fit.normal, fit.offset, "RANSAC plane of the table points")
     z0 = float(obj[:, 2].min()) if len(obj) else float(points[:, 2].min())
     return Support(np.array([0.0, 0.0, 1.0]), z0, "b1 xy plane under the lowest object point")
 

@@ -60,3 +60,21 @@ def test_an_open_cup_and_a_blob_are_free_form():
     L = np.r_[np.full(len(T), -1), np.zeros(len(blob), int)].astype(np.int32)
     kind, fit = _fit(P, L)
     assert kind == "free-form" and fit < 0.9
+
+
+def test_support_without_a_segments_plane_is_the_shared_fitters_level_plane():
+    """Segments without a table plane: the table comes from segmentation.fit_plane (RANSAC refined by least
+    squares), level planes only; a background that is one steep wall falls back on the lowest object point."""
+    rng = np.random.default_rng(4)
+    tilt = np.deg2rad(2.0)
+    xy = rng.uniform(-0.3, 0.6, (4000, 2))
+    z = np.tan(tilt) * xy[:, 0] + 0.01 + rng.normal(0.0, 0.002, 4000)
+    obj = np.c_[rng.uniform(0.3, 0.35, (300, 2)), rng.uniform(0.02, 0.08, 300)]
+    P, L = np.vstack([np.c_[xy, z], obj]), np.r_[np.full(4000, -1), np.zeros(300, int)]
+    sup = estimate_support(P, L)
+    n_true = np.array([-np.sin(tilt), 0.0, np.cos(tilt)])
+    assert sup.source.startswith("RANSAC") and sup.up @ n_true > np.cos(np.deg2rad(0.1))
+    assert abs(sup.elevation(np.array([[0.0, 0.0, 0.01]]))[0]) < 1e-3
+    wall = np.c_[np.full(2000, 0.9), rng.uniform(-0.5, 0.5, 2000), rng.uniform(0.0, 0.8, 2000)]
+    sup = estimate_support(np.vstack([wall, obj]), np.r_[np.full(2000, -1), np.zeros(300, int)])
+    assert sup.source.startswith("b1 xy plane") and np.allclose(sup.up, [0.0, 0.0, 1.0])
