@@ -23,6 +23,7 @@ def _commands(tmp, bad):
         "run": ["run", "scenes/demo", "--out", bad],
         "synth": ["synth", bad, "--no-render"],
         "reconstruct --workdir": ["reconstruct", scene, "--workdir", bad],
+        "capture": ["capture", "--arm", "primary", "--poses", str(tmp / "no-poses.yaml"), "--out", bad],
     }
 
 
@@ -52,3 +53,13 @@ def test_reconstruct_plot_file_is_checked_first(kind, tmp_path, capsys):
     assert main(["reconstruct", str(tmp_path / "no-scene"), "--plot", bad]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and bad in err[0] and "fix:" in err[0], err
+
+
+@pytest.mark.parametrize("kind", ["folder", "unwritable"])
+def test_capture_suggest_plot_is_checked_first(kind, tmp_path, capsys):
+    bad = str(tmp_path) if kind == "folder" else UNWRITABLE + ".png"
+    assert main(["capture", "--suggest", "--views", "8", "--plot", bad]) == 1
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert len(err) == 1 and bad in err[0] and "fix:" in err[0], err
+    assert captured.out == ""  # no poses printed: nothing was computed

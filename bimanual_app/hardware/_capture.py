@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from bimanual_app.io_utils import InputError, Problem, atomic_open, atomic_path
+from bimanual_app.io_utils import InputError, Problem, atomic_open, atomic_path, check_output_dir
 
 from ._errors import FeedbackTimeout, HardwareError
 from ._limits import DEFAULT_WORKSPACE, SafetyLimits
@@ -107,6 +107,7 @@ def plan_capture(poses: str | Path | PoseList, out: str | Path, arm: str = "prim
     """
     if arm not in ARMS:
         raise InputError(Problem("--arm", "arm", f"arm must be primary or secondary, got {arm!r}", "use --arm primary"))
+    check_output_dir(out, fix="give a new scene folder, or one you can write to")  # before anything else is read
     pl = poses if isinstance(poses, PoseList) else load_poses(poses)
     if speed is not None:
         pl.speed = float(speed)

@@ -47,7 +47,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _suggest(args) -> int:
-    from bimanual_app.io_utils import InputError, Problem
+    from bimanual_app.io_utils import InputError, Problem, check_output_file
 
     from ._limits import SafetyLimits
     from ._poses import dump_poses
@@ -55,6 +55,8 @@ def _suggest(args) -> int:
 
     if args.views < 3:
         raise InputError(Problem("--views", "views", "need at least 3 views for a calibration", "use --views 8"))
+    if args.plot:
+        check_output_file(args.plot, "--plot", "give a .png path in a folder you can write to")
     limits = SafetyLimits.from_robot("piper", name=args.arm)
     try:
         s = suggest_viewpoints(limits.robot, views=args.views, target=tuple(args.target), limits=limits, seed=args.seed)
