@@ -27,6 +27,7 @@ import numpy as np
 
 from bimanual_app.transforms import check_shape
 
+from ._absolute import normal_covariance
 from ._pointmaps import (
     MapPairs,
     PointMapView,
@@ -190,7 +191,8 @@ def refine_with_point_maps(views: list[PointMapView], T_e1_c1: np.ndarray, T_e2_
         return refused("no point pairs between the two arms' views: T_b1_b2 cannot be refined", **info)
     fun, jac = sol.fun, sol.jac
     sigma = 1.4826 * np.median(np.abs(fun - np.median(fun)))  # robust spread of the residuals (m)
-    cov = sigma ** 2 * np.linalg.pinv(jac.T @ jac)
+    # undetermined directions get an infinite variance, as in the pose-only solve (not pinv's small number)
+    cov = sigma ** 2 * normal_covariance(jac.T @ jac)[0]
     return RefineResult(*current, True, "", covariance=cov, **info)
 
 

@@ -254,3 +254,26 @@ def test_when_every_preview_fails_the_first_is_reported_and_not_approved(fixture
     assert load_approval(out / "approval.json").verdict == "fail"
     with pytest.raises(ApprovalError, match="verdict is 'fail'"):
         check_approval(load_approval(out / "approval.json"), plan)  # the hardware refuses a failed preview
+
+
+def test_ctrl_c_while_a_task_writes_leaves_the_old_result_whole(fixture_dirs, tmp_path, monkeypatch):
+    """Ctrl-C after the task has written part of its result (the plan) into its staging folder: the
+    interrupt goes through (exit 130), the earlier result in OUT stays as it was, and no staging folder or
+    partial file is left beside it."""
+    import bimanual_app.tasks._run as task_run
+
+    scene, work = fixture_dirs
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "task.json").write_text('{"earlier": true}')
+    real_report = task_run._report_plan
+
+    def report_then_interrupt(*args, **kwargs):
+        real_report(*args, **kwargs)  # plan.npz is written into the staging folder
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(task_run, "_report_plan", report_then_interrupt)
+    assert main(["task", "joint-grasp", str(scene), "--work", str(work), "--out", str(out), "--quiet"]) == 130
+    assert sorted(p.name for p in out.iterdir()) == ["task.json"]
+    assert json.loads((out / "task.json").read_text()) == {"earlier": True}
+    assert [p.name for p in tmp_path.iterdir()] == ["o"]  # no .o.tmp-* staging folder
