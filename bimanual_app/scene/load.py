@@ -15,7 +15,7 @@ import numpy as np
 import yaml
 
 from bimanual_app.io_utils import InputError, Problem
-from bimanual_app.transforms import T_from_xyz_quat
+from bimanual_app.transforms import T_from_xyz_quat, check_shape, check_T
 
 from .types import ARM_NAMES, ArmCapture, CameraIntrinsics, GroundTruth, Reconstruction, Scene
 
@@ -334,18 +334,15 @@ def _parse_reconstruction(c: _Collector, root: Path) -> Reconstruction | None:
 
 
 def _parse_T(c: _Collector, path: Path, key: str, v) -> np.ndarray | None:
+    """The 4x4 transform written under ``key``, or None after recording why it is not one (the shared
+    ``check_T``: a 4x4 of finite numbers, a proper rotation, a bottom row 0 0 0 1)."""
     try:
-        T = np.array(v, dtype=np.float64)
-    except (TypeError, ValueError):
-        T = None
-    if T is None or T.shape != (4, 4):
-        c.error(path, key, "must be a 4x4 list of lists", "write [[r00, r01, r02, tx], ..., [0, 0, 0, 1]]")
+        return check_T(key, check_shape(key, np.array(v, dtype=np.float64), (4, 4)))
+    except (TypeError, ValueError) as e:
+        reason = str(e).removeprefix(f"{key}: ")
+        c.error(path, key, f"is not a rigid transform ({reason})",
+                "write [[r00, r01, r02, tx], ..., [0, 0, 0, 1]] with a proper rotation")
         return None
-    if not np.all(np.isfinite(T)) or np.abs(T[:3, :3].T @ T[:3, :3] - np.eye(3)).max() > 1e-4 \
-            or np.linalg.det(T[:3, :3]) < 0 or not np.allclose(T[3], [0, 0, 0, 1]):
-        c.error(path, key, "is not a rigid transform", "give a proper rotation and a bottom row 0 0 0 1")
-        return None
-    return T
 
 
 def _parse_ground_truth(c: _Collector, root: Path) -> GroundTruth | None:
