@@ -64,9 +64,10 @@ class LiftingReach:
     def __getattr__(self, name):
         return getattr(self.reach, name)
 
-    def __call__(self, T_b_g: np.ndarray, width: np.ndarray | None = None, retreat: np.ndarray | None = None):
+    def __call__(self, T_b_g: np.ndarray, width: np.ndarray | None = None, retreat: np.ndarray | None = None,
+                 hold_off: np.ndarray | None = None):
         T_b_g = np.asarray(T_b_g, dtype=np.float64).reshape(-1, 4, 4)
-        res = self.reach(T_b_g, width, retreat)
+        res = self.reach(T_b_g, width, retreat, hold_off)
         res.reason = list(res.reason) + [""] * (len(T_b_g) - len(res.reason))
         for k in np.nonzero(res.ok)[0]:
             T = rotate_about_approach(T_b_g[k]) if res.flipped[k] else T_b_g[k]
@@ -86,11 +87,13 @@ def lifting_arm(arm: Arm, up_b1: np.ndarray, lift: float) -> Arm | None:
     return Arm(arm.name, arm.T_b1_b, LiftingReach(arm.reach, up_b, lift))
 
 
-def _reach_either_way(arm: Arm, T_b: np.ndarray, width: np.ndarray, retreats_b1: np.ndarray, T_b_b1: np.ndarray
-                      ) -> tuple[ReachResult, np.ndarray]:
+def _reach_either_way(arm: Arm, T_b: np.ndarray, width: np.ndarray, retreats_b1: np.ndarray, T_b_b1: np.ndarray,
+                      hold_off_b1: np.ndarray | None = None) -> tuple[ReachResult, np.ndarray]:
     """Reach filter on grasps (n, 4, 4) that have several ways in (``retreats_b1`` (n, R, 3) unit directions to
-    the pre-grasp in b1, NaN where blocked): each tried in turn until one works. Returns the result and the
-    direction used (n, 3) (NaN where none worked)."""
+    the pre-grasp in b1, NaN where blocked): each tried in turn until one works; ``hold_off_b1`` (n, 3): where
+    each approach ends, from the grasp (b1). Returns the result and the direction used (n, 3) (NaN where none
+    worked)."""
+    hold_b = None if hold_off_b1 is None else np.asarray(hold_off_b1, dtype=np.float64) @ T_b_b1[:3, :3].T
     n = len(T_b)
     res = None
     used = np.full((n, 3), np.nan)
@@ -99,7 +102,8 @@ def _reach_either_way(arm: Arm, T_b: np.ndarray, width: np.ndarray, retreats_b1:
         todo = np.isfinite(rts).all(axis=1) & (np.ones(n, bool) if res is None else ~res.ok)
         if not todo.any():
             continue
-        sub = arm.reach(T_b[todo], width[todo], rts[todo] @ T_b_b1[:3, :3].T)
+        sub = (arm.reach(T_b[todo], width[todo], rts[todo] @ T_b_b1[:3, :3].T) if hold_b is None else
+               arm.reach(T_b[todo], width[todo], rts[todo] @ T_b_b1[:3, :3].T, hold_b[todo]))
         if res is None:
             J = sub.q.shape[1]
             res = ReachResult(np.zeros(n, bool), np.full((n, J), np.nan), np.full((n, J), np.nan), np.zeros(n, bool),
@@ -145,7 +149,8 @@ def reachable_grasps(gs: GraspSet, arm: Arm, max_tries: int = 40, want: int = 10
         idx = order[tried: min(tried + batch, n_check)]
         T_b = T_b_b1 @ gs.T_b1_g[idx]
         if "retreats" in gs.extra:  # push contacts: one of their two ways in, whichever is free and reachable
-            res, rt_used = _reach_either_way(arm, T_b, gs.width[idx], gs.extra["retreats"][idx], T_b_b1)
+            hold = gs.extra["hold_off"][idx] if "hold_off" in gs.extra else None
+            res, rt_used = _reach_either_way(arm, T_b, gs.width[idx], gs.extra["retreats"][idx], T_b_b1, hold)
         else:
             res, rt_used = arm.reach(T_b, gs.width[idx]), np.full((len(idx), 3), np.nan)
         for k, i in enumerate(idx):

@@ -52,7 +52,8 @@ class PushParams:
         rather than in front of it reaches it turned; the squeeze stays along the face normal.
     press: how far past the face the fingertips are driven to squeeze (the grasp's ``depth`` is -press).
     standoff: the gap kept for the collision check of the approach: the task's approach stops this far
-        out from the face (``bimanual_app.tasks._planners.PUSH_STANDOFF``), and the squeeze starts there.
+        out from the face (``bimanual_app.tasks._planners.PUSH_STANDOFF``), and the squeeze starts there;
+        the arms' reach check ends the approach there too (``extra["hold_off"]``).
     pad_depth: points within this distance of the face plane count as under a pad.
     min_pad_points: face points needed around each fingertip (within ``fit_radius``).
     edge_margin: the pads stay this far inside the face's edges.
@@ -369,7 +370,8 @@ def _scored(geo: ObjectGeometry, collider: GripperCollider, others: SceneOctree,
     score = sum(WEIGHTS[k] * v for k, v in terms.items())
     gs = GraspSet(geo.id, T, wv, np.array([r[6] for r in rows]), np.full(len(rows), -params.press), score, terms,
                   kind="push", extra={"face": np.array([(r[1], r[2]) for r in rows]), "squeeze": -nrm,
-                                      "contact": np.array([r[9] for r in rows]), "retreats": retreats})
+                                      "contact": np.array([r[9] for r in rows]), "retreats": retreats,
+                                      "hold_off": params.standoff * nrm})
     return gs.take(np.argsort(-score))
 
 

@@ -1,9 +1,11 @@
 """Reachability of grasps by one arm: a pluggable filter.
 
-A *reach filter* is any callable ``f(T_b_g, width, retreat=None) -> ReachResult`` taking grasps
-``T_b_g`` (N, 4, 4) in that arm's own base frame, openings ``width`` (N,) and optionally the directions
-to their pre-grasps ``retreat`` (N, 3) (default: back along each approach axis), and returning which of
-them the arm reaches, with the joint solutions. The grasp planner only calls it; tests and benchmarks may pass their own. A filter
+A *reach filter* is any callable ``f(T_b_g, width, retreat=None, hold_off=None) -> ReachResult`` taking
+grasps ``T_b_g`` (N, 4, 4) in that arm's own base frame, openings ``width`` (N,) and optionally the
+directions to their pre-grasps ``retreat`` (N, 3) (default: back along each approach axis) and the offsets
+``hold_off`` (N, 3) from each grasp to where its approach ends (a push contact's standoff from the face:
+the task approaches to there, then squeezes), and returning which of them the arm reaches, with the joint
+solutions. The grasp planner only calls it; tests and benchmarks may pass their own. A filter
 may also have ``for_scene(points_b1) -> filter``: the planner then binds it to the scene map once.
 
 :class:`ArmReach` is the real one, on the project's kinematics and collision world: a grasp is reachable
@@ -14,7 +16,8 @@ when
   trying the grasp and the same grasp turned 180 degrees about the approach axis (a parallel gripper is
   symmetric; the wrist's joint limits often allow only one of them) -- ``ReachResult.flipped`` says which;
 - the pre-grasp, ``pregrasp`` metres back along the approach (or ``retreat``), and points at most 2 cm
-  apart between, are reached by IK
+  apart between (from the held-off pose, where there is one: the very line the task's approach follows), are
+  reached by IK
   seeded from the grasp's solution, each step moving no joint more than ``max_step`` radians (a straight
   approach the arm can follow, not a jump to another IK branch);
 - the grasp, the pre-grasp and the points between are free of collisions with the scene map (object
@@ -57,8 +60,8 @@ class ReachResult:
 
 
 class ReachFilter(Protocol):
-    def __call__(self, T_b_g: np.ndarray, width: np.ndarray | None = None,
-                 retreat: np.ndarray | None = None) -> ReachResult: ...
+    def __call__(self, T_b_g: np.ndarray, width: np.ndarray | None = None, retreat: np.ndarray | None = None,
+                 hold_off: np.ndarray | None = None) -> ReachResult: ...
 
 
 def pregrasp_pose(T_b_g: np.ndarray, distance: float, retreat: np.ndarray | None = None) -> np.ndarray:
@@ -261,16 +264,17 @@ class ArmReach:
                         self.max_seeds, self.max_step, self.q_current, self.resolution, self.name, self.n_solutions,
                         _solver=self.solver)
 
-    def _approach(self, T: np.ndarray, q: np.ndarray, retreat: np.ndarray | None = None
-                  ) -> tuple[np.ndarray | None, list[np.ndarray], str]:
-        """IK along the straight approach from the grasp back to the pre-grasp, seeded step by step."""
+    def _approach(self, T: np.ndarray, q: np.ndarray, retreat: np.ndarray | None = None,
+                  hold_off: np.ndarray | None = None) -> tuple[np.ndarray | None, list[np.ndarray], str]:
+        """IK along the straight approach from the grasp back to the pre-grasp, seeded step by step; with
+        ``hold_off`` (3,), first the held-off pose, then the line from it to the pre-grasp."""
+        poses, where = _approach_poses(T, self.pregrasp, retreat, hold_off)
         qs = []
         prev = q
-        n = max(3, int(np.ceil(self.pregrasp / 0.02)))  # 2 cm steps: see ``follow`` (the wrist singularity)
-        for s in np.arange(1, n + 1) / n:
-            res = self.solver.solve(pregrasp_pose(T, s * self.pregrasp, retreat), q_current=prev, max_seeds=4)
+        for Tk, at in zip(poses, where):
+            res = self.solver.solve(Tk, q_current=prev, max_seeds=4)
             if not res.success:
-                return None, qs, f"pre-grasp {s * self.pregrasp * 100:.0f} cm back: {res.message}"
+                return None, qs, f"{at}: {res.message}"
             if np.max(np.abs(res.q - prev)) > self.max_step:
                 return None, qs, "the straight approach needs a jump between IK branches"
             qs.append(res.q)
@@ -304,12 +308,14 @@ class ArmReach:
             return f"{'grasp' if k == 0 else 'approach'} in collision: {why[0]}"
         return ""
 
-    def __call__(self, T_b_g: np.ndarray, width: np.ndarray | None = None,
-                 retreat: np.ndarray | None = None) -> ReachResult:
+    def __call__(self, T_b_g: np.ndarray, width: np.ndarray | None = None, retreat: np.ndarray | None = None,
+                 hold_off: np.ndarray | None = None) -> ReachResult:
         """Reachability of grasps ``T_b_g`` (N, 4, 4) in this arm's base frame at openings ``width`` (N,);
-        ``retreat`` (N, 3): unit directions (base frame) to the pre-grasp, default each grasp's -z."""
+        ``retreat`` (N, 3): unit directions (base frame) to the pre-grasp, default each grasp's -z;
+        ``hold_off`` (N, 3): where each approach ends, from the grasp (base frame; default: at the grasp)."""
         T_b_g = np.asarray(T_b_g, dtype=np.float64).reshape(-1, 4, 4)
         rt = None if retreat is None else np.asarray(retreat, dtype=np.float64).reshape(-1, 3)
+        ho = None if hold_off is None else np.asarray(hold_off, dtype=np.float64).reshape(-1, 3)
         n = len(T_b_g)
         J = self.robot.nq_arm
         w = np.full(n, self.gripper.min_width) if width is None else np.broadcast_to(np.asarray(width, float), (n,))
@@ -333,7 +339,7 @@ class ArmReach:
                         return [q for q in r.solutions if np.abs(q - q0).max() > 1e-3]
                     branches = _Lazy(branches, more)
                 for q in branches:  # closest to the current configuration first
-                    q_pre, q_path, msg = self._approach(T, q, None if rt is None else rt[i])
+                    q_pre, q_path, msg = self._approach(T, q, None if rt is None else rt[i], None if ho is None else ho[i])
                     if q_pre is None:
                         why.append(msg)
                         continue
@@ -350,6 +356,28 @@ class ArmReach:
             if not out.ok[i]:
                 out.reason[i] = why[-1] if why else "unreachable"
         return out
+
+
+def _approach_poses(T: np.ndarray, pregrasp: float, retreat: np.ndarray | None, hold_off: np.ndarray | None
+                    ) -> tuple[list[np.ndarray], list[str]]:
+    """The poses (4, 4) an approach to grasp ``T`` is checked at, from the grasp outwards, and what each is:
+    at most 2 cm apart on the straight line to the pre-grasp (``pregrasp`` metres along ``retreat``, default
+    -z); with ``hold_off`` (3,), the held-off pose first and the line from it (the task's approach line)."""
+    n = max(3, int(np.ceil(pregrasp / 0.02)))  # 2 cm steps: see ``ArmReach.follow`` (the wrist singularity)
+    if hold_off is None:
+        return ([pregrasp_pose(T, s * pregrasp, retreat) for s in np.arange(1, n + 1) / n],
+                [f"pre-grasp {s * pregrasp * 100:.0f} cm back" for s in np.arange(1, n + 1) / n])
+    T_end = T.copy()
+    T_end[:3, 3] += hold_off
+    line = pregrasp_pose(T, pregrasp, retreat)[:3, 3] - T_end[:3, 3]
+    n = max(n, int(np.ceil(np.linalg.norm(line) / 0.02)))
+    poses, where = [T_end], [f"held off {np.linalg.norm(hold_off) * 1000:.0f} mm"]
+    for s in np.arange(1, n + 1) / n:
+        Tk = T_end.copy()
+        Tk[:3, 3] += s * line
+        poses.append(Tk)
+        where.append(f"pre-grasp {s * np.linalg.norm(line) * 100:.0f} cm back")
+    return poses, where
 
 
 _MAPS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -383,7 +411,8 @@ class _Lazy:
 def callable_filter(fn: Callable[[np.ndarray], np.ndarray], J: int = 6) -> ReachFilter:
     """A reach filter from a plain predicate on poses (N, 4, 4) -> (N,) bool (no joint solutions)."""
 
-    def f(T_b_g: np.ndarray, width: np.ndarray | None = None, retreat: np.ndarray | None = None) -> ReachResult:
+    def f(T_b_g: np.ndarray, width: np.ndarray | None = None, retreat: np.ndarray | None = None,
+          hold_off: np.ndarray | None = None) -> ReachResult:
         T_b_g = np.asarray(T_b_g, dtype=np.float64).reshape(-1, 4, 4)
         ok = np.asarray(fn(T_b_g), dtype=bool)
         n = len(T_b_g)

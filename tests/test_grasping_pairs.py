@@ -237,7 +237,7 @@ def test_push_contacts_can_be_reached_from_straight_above():
     finite = np.isfinite(R[:, 2]).all(axis=1)
     assert finite.any() and np.allclose(R[finite, 2], up)
 
-    def from_above_only(T_b_g, width=None, retreat=None):
+    def from_above_only(T_b_g, width=None, retreat=None, hold_off=None):
         n = len(T_b_g)
         ok = np.zeros(n, bool) if retreat is None else np.asarray(retreat)[:, 2] > 0.99
         return ReachResult(ok, np.zeros((n, 6)), np.zeros((n, 6)), np.zeros(n, bool), [""] * n)

@@ -88,3 +88,43 @@ def test_follow_a_straight_lift_and_the_lifting_filter(reach):
     plain = Arm("primary", np.eye(4), callable_filter(lambda Ts: np.ones(len(Ts), dtype=bool)))
     assert lifting_arm(plain, np.array([0.0, 0.0, 1.0]), 0.12) is None
     assert isinstance(lifting_arm(Arm("primary", np.eye(4), f), np.array([0.0, 0.0, 1.0]), 0.12).reach, LiftingReach)
+
+
+def test_an_approach_held_off_the_grasp_is_checked_where_it_ends(reach):
+    """A push contact's approach ends held off the face (the task's standoff), then squeezes: the reach
+    filter checks that pose too and the straight line from it to the pre-grasp, the task's own approach line;
+    a held-off pose the arm cannot take rejects the grasp with that reason."""
+    from grasping._reach import _approach_poses
+
+    robot, f = reach
+    T = _tilted()
+    up = np.array([0.0, 0.0, 1.0])
+    hold = -0.01 * T[:3, 2]  # 1 cm back along the approach
+    poses, where = _approach_poses(T, f.pregrasp, up, hold)
+    assert np.allclose(poses[0][:3, 3], T[:3, 3] + hold) and where[0] == "held off 10 mm"
+    assert np.allclose(poses[-1], pregrasp_pose(T, f.pregrasp, up))  # the same pre-grasp
+    steps = np.linalg.norm(np.diff([P[:3, 3] for P in poses], axis=0), axis=1)
+    assert steps.max() <= 0.02 + 1e-12 and all(np.allclose(P[:3, :3], T[:3, :3]) for P in poses)
+    res = f(T[None], np.array([0.05]), up[None], hold[None])
+    assert res.ok[0]
+    T_used = rotate_about_approach(T) if res.flipped[0] else T
+    assert np.allclose(robot.fk_link(res.q[0], robot.tcp_link), T_used, atol=1e-3)  # q is still the grasp's
+    res = f(T[None], np.array([0.05]), up[None], np.array([[0.6, 0.0, 0.0]]))  # "held off" beyond the reach
+    assert not res.ok[0] and "held off 600 mm" in res.reason[0]
+
+
+def test_push_contacts_carry_their_standoff_as_the_hold_off():
+    """Each push contact's hold-off is the standoff out along the face's outward normal: against its squeeze."""
+    from _grasp_fixtures import Obj, make_cloud
+
+    from grasping import GripperCollider, estimate_support, object_geometry
+    from grasping._collision import SceneOctree
+    from grasping._push import PushParams, push_contacts
+
+    P, L = make_cloud([Obj("box", (0.35, 0.0), (0.22, 0.12, 0.10), 0.0)], noise=0.0, seed=1)
+    sup = estimate_support(P, L)
+    geo = object_geometry(0, P[L == 0], sup, background=P[L < 0])
+    g = load_gripper("piper")
+    push = push_contacts(geo, sup, g, GripperCollider(g), SceneOctree(P[L < 0]))
+    assert len(push)
+    assert np.allclose(push.extra["hold_off"], -PushParams().standoff * push.extra["squeeze"])

@@ -95,8 +95,8 @@ class _Cone:
         ang = np.degrees(np.arccos(np.clip((z * want).sum(axis=1), -1, 1)))
         return (T[:, 2, 3] < 0.12) | (ang < self.max_deg)
 
-    def __call__(self, T, width=None, retreat=None):
-        return self.filter(T, width, retreat)
+    def __call__(self, T, width=None, retreat=None, hold_off=None):
+        return self.filter(T, width, retreat, hold_off)
 
     def prior(self, T):
         return np.where(self.ok(np.asarray(T).reshape(-1, 4, 4)), 0.0, np.inf)
