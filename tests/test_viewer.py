@@ -309,12 +309,17 @@ def test_page_renders_in_headless_chromium_and_ctrl_c_stops_it(run_dir, tmp_path
         out = "".join(lines)
         port = int(url.rsplit(":", 1)[1])
         assert "listening on 127.0.0.1 only" in out and f"ssh -L {port}:127.0.0.1:{port}" in out
-        shot = tmp_path / "view.png"
-        _shot(url, shot, tmp_path / "profile")
-        assert shot.exists(), "chromium wrote no screenshot"
-        img = np.asarray(Image.open(shot).convert("RGB")).astype(int)
-        h, w = img.shape[:2]
-        scene = img[int(h * 0.3):, : int(w * 0.7)]  # below the browser's notices, left of the GUI panel
+        # on a loaded machine the page can be captured before the server's scene has arrived over the
+        # websocket (the virtual time budget runs on the browser's clock, not the server's): shoot again then
+        for attempt in range(3):
+            shot = tmp_path / f"view{attempt}.png"
+            _shot(url, shot, tmp_path / f"profile{attempt}")
+            assert shot.exists(), "chromium wrote no screenshot"
+            img = np.asarray(Image.open(shot).convert("RGB")).astype(int)
+            h, w = img.shape[:2]
+            scene = img[int(h * 0.3):, : int(w * 0.7)]  # below the browser's notices, left of the GUI panel
+            if scene.std() > 20:
+                break
         assert scene.std() > 20, "the 3D view is blank"
         # the segments are drawn: pixels of both objects' colours and of the grey table. The renderer lightens
         # small points towards the white background (more or less with the load on the machine), so a pixel
