@@ -102,8 +102,7 @@ def _reach_either_way(arm: Arm, T_b: np.ndarray, width: np.ndarray, retreats_b1:
         todo = np.isfinite(rts).all(axis=1) & (np.ones(n, bool) if res is None else ~res.ok)
         if not todo.any():
             continue
-        sub = (arm.reach(T_b[todo], width[todo], rts[todo] @ T_b_b1[:3, :3].T) if hold_b is None else
-               arm.reach(T_b[todo], width[todo], rts[todo] @ T_b_b1[:3, :3].T, hold_b[todo]))
+        sub = arm.reach(T_b[todo], width[todo], rts[todo] @ T_b_b1[:3, :3].T, None if hold_b is None else hold_b[todo])
         if res is None:
             J = sub.q.shape[1]
             res = ReachResult(np.zeros(n, bool), np.full((n, J), np.nan), np.full((n, J), np.nan), np.zeros(n, bool),
