@@ -182,3 +182,36 @@ def test_an_object_that_fell_off_the_table_is_said_so():
     assert not v.ok and "fell off the table" in v.detail and "rose only" not in v.detail
     mon.samples = [HoldSample(t, 0.03, frozenset(), frozenset(), False) for t in np.arange(0, 3, 0.1)]
     assert "rose only 3.0 cm" in mon.lifted_and_held({"secondary"}).detail
+
+
+def test_frames_drawn_over_the_cached_still_bodies_equal_whole_renders(robot):
+    """The recorder draws the still bodies (the table) once and the moving ones each frame; the pictures are
+    the ones TinyRenderer gives for the whole world, while the arm and the object move, and after a still
+    body moved (its cached picture is redrawn); a recolour made by the world is kept."""
+    table = table_from_plane([0, 0, 1], 0.0)
+    shape = shape_from_points(box_surface_points([0.32, 0.0, 0.05], np.array([0.04, 0.045, 0.10]), 1500), table)
+    rec = Recorder(width=120, height=90)
+    world, phys = build_world(robot, T_B1_B2, table, {0: shape}, recorder=rec)
+    p, cid = world.p, world.cid
+
+    def whole():
+        return rec._shot()[0]
+
+    try:
+        bodies = rec._split_bodies()
+        assert len(bodies.still) == 1 and len(bodies.moving) == 3  # the table; two arms and the object
+        for q in (robot.neutral(), SEED):
+            world.arms["primary"].reset(q, 0.05)
+            world.hold(0.1)
+            assert np.array_equal(rec.render(), whole())
+        p.resetBasePositionAndOrientation(phys[0].body, [0.25, 0.1, 0.3], [0, 0, 0, 1], physicsClientId=cid)
+        assert np.array_equal(rec.render(), whole())
+        (table_id,) = bodies.still
+        p.resetBasePositionAndOrientation(table_id, [0.0, 0.0, -0.05], [0, 0, 0, 1], physicsClientId=cid)
+        assert np.array_equal(rec.render(), whole())
+        p.changeVisualShape(phys[0].body, -1, rgbaColor=[0.9, 0.1, 0.1, 1.0], physicsClientId=cid)
+        img = rec.render()
+        assert np.array_equal(img, whole())
+        assert p.getVisualShapeData(phys[0].body, physicsClientId=cid)[0][7] == pytest.approx((0.9, 0.1, 0.1, 1.0))
+    finally:
+        world.close()
