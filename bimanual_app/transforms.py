@@ -14,7 +14,14 @@ matrices that returns the rotation vector without a round-trip through quaternio
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+
+
+def _rotation():
+    """scipy's ``Rotation`` class, imported on first use (importing scipy.spatial costs 0.4 s, and every
+    command's parser imports this module)."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation
 
 __all__ = [
     "make_T",
@@ -108,14 +115,14 @@ def T_from_xyz_quat(xyz: np.ndarray, quat_xyzw: np.ndarray) -> np.ndarray:
     """Transforms ``(..., 4, 4)`` from positions ``(..., 3)`` and unit quaternions (x, y, z, w) ``(..., 4)``."""
     xyz = np.asarray(xyz, dtype=np.float64)
     q = np.asarray(quat_xyzw, dtype=np.float64)
-    R = Rotation.from_quat(q.reshape(-1, 4)).as_matrix().reshape(q.shape[:-1] + (3, 3))
+    R = _rotation().from_quat(q.reshape(-1, 4)).as_matrix().reshape(q.shape[:-1] + (3, 3))
     return make_T(R, xyz)
 
 
 def xyz_quat_from_T(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Positions ``(..., 3)`` and quaternions (x, y, z, w) ``(..., 4)``, w >= 0, from transforms ``(..., 4, 4)``."""
     T = np.asarray(T, dtype=np.float64)
-    q = Rotation.from_matrix(T[..., :3, :3].reshape(-1, 3, 3)).as_quat().reshape(T.shape[:-2] + (4,))
+    q = _rotation().from_matrix(T[..., :3, :3].reshape(-1, 3, 3)).as_quat().reshape(T.shape[:-2] + (4,))
     q = np.where(q[..., 3:4] < 0, -q, q)
     return T[..., :3, 3].copy(), q
 
@@ -143,7 +150,7 @@ def perpendicular_basis(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def so3_exp(w: np.ndarray) -> np.ndarray:
     """Rotation matrices ``(..., 3, 3)`` from rotation vectors (axis * angle) ``(..., 3)``."""
     w = np.asarray(w, dtype=np.float64)
-    return Rotation.from_rotvec(w.reshape(-1, 3)).as_matrix().reshape(w.shape[:-1] + (3, 3))
+    return _rotation().from_rotvec(w.reshape(-1, 3)).as_matrix().reshape(w.shape[:-1] + (3, 3))
 
 
 def so3_log(R: np.ndarray) -> np.ndarray:
@@ -153,7 +160,7 @@ def so3_log(R: np.ndarray) -> np.ndarray:
     textbook ``omega / (2 sin omega) * vee(R - R^T)`` formula loses precision or divides by zero.
     """
     R = np.asarray(R, dtype=np.float64)
-    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))
+    return _rotation().from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))
 
 
 def rotation_angle(R: np.ndarray) -> np.ndarray:
@@ -183,7 +190,7 @@ def mean_rotation(R: np.ndarray, weights: np.ndarray | None = None) -> np.ndarra
     A proper rotation mean (scipy's quaternion-based ``Rotation.mean``), not an element-wise average.
     """
     R = check_shape("R", R, (None, 3, 3))
-    return Rotation.from_matrix(R).mean(weights=weights).as_matrix()
+    return _rotation().from_matrix(R).mean(weights=weights).as_matrix()
 
 
 def mean_T(T: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
@@ -197,6 +204,6 @@ def mean_T(T: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
 def random_T(rng: np.random.Generator, n: int | None = None, trans_scale: float = 1.0) -> np.ndarray:
     """Uniformly random rotations with Gaussian translations (std ``trans_scale``): ``(4, 4)`` or ``(n, 4, 4)``."""
     m = 1 if n is None else n
-    R = Rotation.random(m, random_state=rng).as_matrix()
+    R = _rotation().random(m, random_state=rng).as_matrix()
     T = make_T(R, rng.normal(scale=trans_scale, size=(m, 3)))
     return T[0] if n is None else T

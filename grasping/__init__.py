@@ -15,29 +15,37 @@ Public API:
 CLI: ``bijcr grasp SCENE_DIR_OR_CLOUD --segments DIR/segments.npz --out DIR [--calibration calibration.json]``.
 """
 
-from ._antipodal import GraspSet, SamplerParams, rotate_about_approach, sample_grasps
-from ._arms import Arm, ArmGrasps, TwoArmCheck, make_arms, reachable_grasps
-from ._collision import GripperCollider, SceneOctree, grippers_collide, grippers_distance
-from ._gripper import GripperModel, GripperShape, load_gripper
-from ._handover import Handover, HandoverParams
-from ._inputs import SceneCloud, b2b_sigma, load_calibration, load_cloud, load_segments, resolve_inputs, scene_cloud
-from ._joint import JointPair
-from ._objects import ObjectGeometry, Support, check_graspable, estimate_support, object_geometry
-from ._output import draw_plan, plan_to_dict, write_grasps_json
-from ._plan import GraspPlan, ObjectPlan, PlanParams, plan_grasps
-from ._push import PushParams, push_contacts
-from ._reach import ArmReach, ReachFilter, ReachResult, callable_filter, pregrasp_pose
-from ._stage import GraspStage, grasp_stage
+from __future__ import annotations
+
+from bimanual_app.lazy import lazy_exports
+
+# name -> private module; imported on first use (PEP 562), so that ``bijcr --help`` and a mistyped
+# ``bijcr grasp`` answer without loading scipy, Open3D or coal.
+_EXPORTS = {
+    "GraspSet": "_antipodal", "SamplerParams": "_antipodal", "rotate_about_approach": "_antipodal", "sample_grasps": "_antipodal",
+    "Arm": "_arms", "ArmGrasps": "_arms", "TwoArmCheck": "_arms", "make_arms": "_arms", "reachable_grasps": "_arms",
+    "GripperCollider": "_collision", "SceneOctree": "_collision", "grippers_collide": "_collision", "grippers_distance": "_collision",
+    "GripperModel": "_gripper", "GripperShape": "_gripper", "load_gripper": "_gripper",
+    "Handover": "_handover", "HandoverParams": "_handover",
+    "SceneCloud": "_inputs", "b2b_sigma": "_inputs", "load_calibration": "_inputs", "load_cloud": "_inputs", "load_segments": "_inputs", "resolve_inputs": "_inputs", "scene_cloud": "_inputs",
+    "JointPair": "_joint",
+    "ObjectGeometry": "_objects", "Support": "_objects", "check_graspable": "_objects", "estimate_support": "_objects", "object_geometry": "_objects",
+    "draw_plan": "_output", "plan_to_dict": "_output", "write_grasps_json": "_output",
+    "GraspPlan": "_plan", "ObjectPlan": "_plan", "PlanParams": "_plan", "plan_grasps": "_plan",
+    "PushParams": "_push", "push_contacts": "_push",
+    "ArmReach": "_reach", "ReachFilter": "_reach", "ReachResult": "_reach", "callable_filter": "_reach", "pregrasp_pose": "_reach",
+    "GraspStage": "_stage", "grasp_stage": "_stage",
+}
 
 __all__ = [
-    "load_gripper", "GripperModel", "GripperShape",
-    "plan_grasps", "PlanParams", "GraspPlan", "ObjectPlan",
-    "sample_grasps", "SamplerParams", "GraspSet", "rotate_about_approach",
-    "push_contacts", "PushParams", "JointPair", "Handover", "HandoverParams",
-    "make_arms", "Arm", "ArmGrasps", "reachable_grasps", "TwoArmCheck",
-    "ArmReach", "ReachFilter", "ReachResult", "callable_filter", "pregrasp_pose",
-    "GripperCollider", "SceneOctree", "grippers_collide", "grippers_distance",
-    "SceneCloud", "scene_cloud", "load_cloud", "load_segments", "load_calibration", "b2b_sigma", "resolve_inputs",
-    "ObjectGeometry", "Support", "estimate_support", "object_geometry", "check_graspable",
+    "load_gripper", "GripperModel", "GripperShape", "plan_grasps", "PlanParams", "GraspPlan",
+    "ObjectPlan", "sample_grasps", "SamplerParams", "GraspSet", "rotate_about_approach", "push_contacts",
+    "PushParams", "JointPair", "Handover", "HandoverParams", "make_arms", "Arm",
+    "ArmGrasps", "reachable_grasps", "TwoArmCheck", "ArmReach", "ReachFilter", "ReachResult",
+    "callable_filter", "pregrasp_pose", "GripperCollider", "SceneOctree", "grippers_collide", "grippers_distance",
+    "SceneCloud", "scene_cloud", "load_cloud", "load_segments", "load_calibration", "b2b_sigma",
+    "resolve_inputs", "ObjectGeometry", "Support", "estimate_support", "object_geometry", "check_graspable",
     "plan_to_dict", "write_grasps_json", "draw_plan", "grasp_stage", "GraspStage",
 ]
+
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -17,15 +17,27 @@ Public API:
 CLI: ``bijcr segment CLOUD --out DIR [--masks SCENE]``. See docs/segmentation.md.
 """
 
-from ._io import read_cloud, write_segments
-from ._masks import MaskViews, read_calibration
-from ._params import SegmentParams
-from ._pipeline import SegmentResult, segment
-from ._plane import PlaneFit, fit_plane, uniform_sample
-from ._stage import SegmentStage, segment_stage
-from ._summary import ObjectSummary
-from ._table import TablePlane
+from __future__ import annotations
 
-__all__ = ["segment", "SegmentParams", "SegmentResult", "ObjectSummary", "TablePlane", "MaskViews",
-           "fit_plane", "PlaneFit", "uniform_sample",
-           "read_cloud", "write_segments", "read_calibration", "segment_stage", "SegmentStage"]
+from bimanual_app.lazy import lazy_exports
+
+# name -> private module; imported on first use (PEP 562), so that ``bijcr --help`` and a mistyped
+# ``bijcr segment`` answer without loading scipy, Open3D or coal.
+_EXPORTS = {
+    "read_cloud": "_io", "write_segments": "_io",
+    "MaskViews": "_masks", "read_calibration": "_masks",
+    "SegmentParams": "_params",
+    "SegmentResult": "_pipeline", "segment": "_pipeline",
+    "PlaneFit": "_plane", "fit_plane": "_plane", "uniform_sample": "_plane",
+    "SegmentStage": "_stage", "segment_stage": "_stage",
+    "ObjectSummary": "_summary",
+    "TablePlane": "_table",
+}
+
+__all__ = [
+    "segment", "SegmentParams", "SegmentResult", "ObjectSummary", "TablePlane", "MaskViews",
+    "fit_plane", "PlaneFit", "uniform_sample", "read_cloud", "write_segments", "read_calibration",
+    "segment_stage", "SegmentStage",
+]
+
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

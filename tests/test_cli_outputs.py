@@ -63,3 +63,22 @@ def test_capture_suggest_plot_is_checked_first(kind, tmp_path, capsys):
     err = captured.err.strip().splitlines()
     assert len(err) == 1 and bad in err[0] and "fix:" in err[0], err
     assert captured.out == ""  # no poses printed: nothing was computed
+
+
+HEAVY = ("scipy", "open3d", "coal", "pybullet", "pinocchio", "torch", "matplotlib", "cv2", "trimesh")
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["segment", "--help"], ["grasp", "--help"], ["task", "--help"]])
+def test_help_starts_without_the_heavy_libraries(argv):
+    """``bijcr --help`` builds every command's parser; neither it nor a command's help loads a numerical
+    library (each costs 0.1-1 s at start-up): they are imported by the commands that run."""
+    import json
+    import subprocess
+    import sys
+
+    code = ("import sys, json, contextlib, io\nfrom bimanual_app.cli import main\n"
+            f"with contextlib.redirect_stdout(io.StringIO()):\n    try:\n        main({argv!r})\n"
+            "    except SystemExit:\n        pass\n"
+            f"print(json.dumps(sorted(m for m in {HEAVY!r} if m in sys.modules)))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == []

@@ -6,7 +6,6 @@ from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from bimanual_app.io_utils import InputError, Problem
@@ -32,6 +31,8 @@ class ArmImages:
 
 def read_rgb(path: Path) -> np.ndarray | None:
     """(H, W, 3) uint8 RGB image, or None when the file cannot be decoded."""
+    import cv2  # here, not at the top: ``bijcr --help`` imports this module
+
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     return None if img is None else np.ascontiguousarray(img[:, :, ::-1])
 
