@@ -181,10 +181,14 @@ def _capped_edt(free: np.ndarray, h: float, cap: float) -> np.ndarray:
 
     The ``edt`` package computes the exact Euclidean transform in linear time, in float32, with no feature
     transform: scipy's ``distance_transform_edt`` needs one (12 bytes per cell) and was 4x slower on a 5 mm
-    map of a workspace."""
+    map of a workspace. It runs on up to 4 threads (the same values: the lines of each pass are independent;
+    1.6 s -> 1.15 s for a 2 m workspace at 5 mm on 2 cores)."""
+    import os
+
     import edt
 
-    d = edt.edt(np.ascontiguousarray(free), anisotropy=(h, h, h), black_border=False, parallel=1)
+    threads = max(1, min(4, os.cpu_count() or 1))
+    d = edt.edt(np.ascontiguousarray(free), anisotropy=(h, h, h), black_border=False, parallel=threads)
     return np.minimum(d, np.float32(cap), out=d)
 
 
