@@ -34,6 +34,9 @@ both arms reach, and a fixed order spent its IK budget on the giver's side alone
 
 from __future__ import annotations
 
+import heapq
+import itertools
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -414,13 +417,25 @@ def _scene_clearance(geo: ObjectGeometry, support: Support, sec: Arm, params: Ha
                           (targets.min(axis=0) - radius, targets.max(axis=0) + radius)), obj_pts
 
 
+RANK_CHUNK = 64  # transfer poses scored at a time (scene clearance, the receivers' prior) by _ranked_transfers
+
+
+def _cost_key(cost: float, pref: int) -> tuple[int, int]:
+    """The rank of a candidate: its predicted cost in 2 cm bins, then its order of preference."""
+    return round(cost / 0.02), pref
+
+
 def _ranked_transfers(geo, support, giver, free, arms, collider, params, clear, scene_clear, obj_pts,
-                      stats) -> list[tuple]:
-    """(giver, move) candidates ranked by predicted cost (the giver's prior + the best clear receiver's):
-    ``(cost, order of preference, giver index, move (4, 4), clear receivers)``, cheaper first."""
-    prim, sec = arms["primary"], arms["secondary"]
-    cands = []
-    clear_of = {}  # giver index -> its clear receivers (best score first)
+                      stats) -> Iterator[tuple]:
+    """(giver, move) candidates, cheaper predicted cost first (the giver's prior + the best clear receiver's;
+    ties: order of preference): ``(cost, order of preference, giver index, move (4, 4), clear receivers)``.
+
+    Lazily: a transfer pose's cost is at least its giver's prior, so the poses are scored (scene clearance,
+    then the receivers' ``prior_min``, the costly part) in order of that bound, ``RANK_CHUNK`` at a time, and
+    a candidate is yielded once no pose left unscored can rank before it: the order of scoring them all
+    first, for the candidates the search asks for. ``stats["object_in_scene"]`` counts the poses scored."""
+    prim = arms["primary"]
+    clear_of, scored, pending = {}, {}, []  # giver -> clear receivers; giver -> (moves, prior, receivers, first)
     n_pref = 0
     for gi in range(min(params.givers, len(giver))):
         G = giver.grasps.T_b1_g[gi]
@@ -432,25 +447,43 @@ def _ranked_transfers(geo, support, giver, free, arms, collider, params, clear, 
         if not len(clear_g):
             continue
         clear_of[gi] = clear_g
-        moves = np.stack(_transfer_moves(geo, support, sec.T_b1_b, G, params))
+        moves = np.stack(_transfer_moves(geo, support, arms["secondary"].T_b1_b, G, params))
         pg = _prior(prim, moves @ G)
-        ok = np.nonzero(pg < params.prior_cut)[0]
-        if scene_clear is not None and len(ok):
+        scored[gi] = (moves, pg, clear_g[: params.max_receivers_ranked], n_pref)  # receivers: best score first
+        pending += [(_cost_key(float(pg[m]), n_pref + int(m)), gi, int(m)) for m in np.nonzero(pg < params.prior_cut)[0]]
+        n_pref += len(moves)
+    pending.sort()
+    ready = [(_cost_key(c[0], c[1]), c) for c in _paired_transfers(geo, support, giver, free, arms, params, clear_of,
+                                                                     scene_clear, obj_pts, stats)]
+    heapq.heapify(ready)
+    for i in range(0, len(pending) + RANK_CHUNK, RANK_CHUNK):
+        bound = pending[i][0] if i < len(pending) else None
+        while ready and (bound is None or ready[0][0] < bound):
+            yield heapq.heappop(ready)[1]
+        if bound is None:
+            return
+        for c in _score_moves(pending[i: i + RANK_CHUNK], scored, free, arms["secondary"], params, scene_clear, obj_pts,
+                              stats):
+            heapq.heappush(ready, (_cost_key(c[0], c[1]), c))
+
+
+def _score_moves(chunk: list, scored: dict, free, sec: Arm, params, scene_clear, obj_pts, stats) -> list[tuple]:
+    """The candidates among ``chunk`` ((key, giver, move index) rows): the transfer poses where the object
+    keeps clear of the scene and the secondary is predicted to reach a clear receiver, with their costs."""
+    out = []
+    for gi in dict.fromkeys(g for _, g, _ in chunk):
+        moves, pg, receivers, first = scored[gi]
+        ok = np.array([m for _, g, m in chunk if g == gi], dtype=int)
+        if scene_clear is not None:
             free_of_scene = _clear_of_scene(scene_clear, moves[ok], obj_pts)
             stats["object_in_scene"] += int((~free_of_scene).sum())
             ok = ok[free_of_scene]
         if not len(ok):
             continue
-        clear_g = clear_g[: params.max_receivers_ranked]  # best score first
-        # per kept move, the best predicted receiver among the clear ones moved with the object
-        best = _prior_min(sec, moves[ok], free.T_b1_g[clear_g], params.prior_cut)
-        for j, m in enumerate(ok):
-            if best[j] < params.prior_cut:
-                cands.append((float(pg[m] + best[j]), n_pref + int(m), gi, moves[m], clear_g))
-        n_pref += len(moves)
-    cands += _paired_transfers(geo, support, giver, free, arms, params, clear_of, scene_clear, obj_pts, stats)
-    cands.sort(key=lambda c: (round(c[0] / 0.02), c[1]))  # cheaper first; ties: order of preference
-    return cands
+        best = _prior_min(sec, moves[ok], free.T_b1_g[receivers], params.prior_cut)
+        out += [(float(pg[m] + best[j]), first + int(m), gi, moves[m], receivers)
+                for j, m in enumerate(ok) if best[j] < params.prior_cut]
+    return out
 
 
 def _paired_transfers(geo, support, giver, free, arms, params, clear_of, scene_clear, obj_pts, stats) -> list[tuple]:
@@ -548,7 +581,7 @@ def _search(geo, support, giver, free, arms, collider, check, params, clear, obs
     T_b_b1 = inv_T(prim.T_b1_b)
     scene_clear, obj_pts = _scene_clearance(geo, support, sec, params, obstacles_b1, object_points_b1)
     cands = _ranked_transfers(geo, support, giver, free, arms, collider, params, clear, scene_clear, obj_pts, stats)
-    for _, _, gi, T_move, clear in cands[: params.max_transfer_checks]:
+    for _, _, gi, T_move, clear in itertools.islice(cands, params.max_transfer_checks):
         stats["transfer_poses"] += 1
         G = giver.grasps.T_b1_g[gi]
         Gt = T_move @ G

@@ -403,3 +403,57 @@ def test_push_contacts_pressed_past_a_short_face_stay_off_the_top():
     # the top inside the faces (a finger beside the face, pressed in, may pass over its very edge)
     inner = top[(np.abs(top[:, 0] - 0.3) < 0.08 - 0.008) & (np.abs(top[:, 1]) < 0.16 - 0.008)]
     assert not GripperCollider(g).collides(SceneOctree(inner, 0.002), deep, push.width, swept=False).any()
+
+
+class _PriorReach:
+    """A reach filter that accepts every grasp and predicts reach by the distance from a point (a ``prior``
+    without ``prior_min``, so the hand-over ranks with its generic fallback)."""
+
+    def __init__(self, centre):
+        from grasping import callable_filter
+
+        self.centre = np.asarray(centre, dtype=float)
+        self._accept = callable_filter(lambda T: np.ones(len(T), dtype=bool))
+
+    def __call__(self, T_b_g, width=None, retreat=None, hold_off=None):
+        return self._accept(T_b_g, width, retreat, hold_off)
+
+    def prior(self, T_b_g):
+        return 0.4 * np.linalg.norm(np.asarray(T_b_g)[:, :3, 3] - self.centre, axis=1)
+
+
+def test_handover_ranking_scored_lazily_keeps_the_order_of_scoring_everything(monkeypatch):
+    """The hand-over's transfer poses are scored chunk by chunk, in order of the giver's prior (a bound on
+    their cost); the candidates come out in the same order whatever the chunk, the order of scoring all of
+    them first (a chunk larger than every pose), sorted by cost bin and preference, and the search finds the
+    same hand-over."""
+    import grasping._handover as gh
+    from grasping import Arm
+
+    P, L = make_cloud([Obj("cylinder", (0.3, 0.2), (0.05, 0.05, 0.11)),
+                       Obj("box", (0.3, 0.0), (0.12, 0.12, 0.30), 0.0)], table_size=(0.8, 0.8))
+    arms = {"primary": Arm("primary", np.eye(4), _PriorReach([0.3, 0.15, 0.2])),
+            "secondary": Arm("secondary", T12, _PriorReach([0.35, 0.05, 0.25]))}
+    real = gh._ranked_transfers
+
+    def handover(chunk, record=None):
+        monkeypatch.setattr(gh, "RANK_CHUNK", chunk)
+        if record is not None:  # every candidate, in the order yielded (the search then reads them from the list)
+            def recorded(*args, **kw):
+                items = list(real(*args, **kw))
+                record.extend((gh._cost_key(c[0], c[1]), c[2], c[3].tobytes()) for c in items)
+                return iter(items)
+
+            monkeypatch.setattr(gh, "_ranked_transfers", recorded)
+        plan = plan_grasps(scene_cloud(P, L), arms=arms, T_b1_b2=T12, params=PlanParams(retry_factor=1), objects=[0])
+        monkeypatch.setattr(gh, "_ranked_transfers", real)
+        h = plan.objects[0].handover
+        assert h is not None, plan.objects[0].notes
+        return h.giver_index, h.T_move.tobytes()
+
+    orders = {chunk: [] for chunk in (10 ** 9, 1, 7)}
+    found = {chunk: handover(chunk, orders[chunk]) for chunk in orders}
+    keys = [k for k, _, _ in orders[10 ** 9]]
+    assert len(keys) > 20 and keys == sorted(keys) and len({k[0] for k in keys}) > 1  # several cost bins
+    assert orders[1] == orders[7] == orders[10 ** 9]
+    assert found[1] == found[7] == found[10 ** 9] == handover(1)  # read lazily by the search, too
