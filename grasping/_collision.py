@@ -152,13 +152,15 @@ class GripperCollider:
         req, res = coal.CollisionRequest(), coal.CollisionResult()
         req.security_margin = float(margin)
         ident = coal.Transform3s()
+        order = list(range(len(geoms)))  # the shape that hit last is tried first: neighbours hit alike
         for j, i in enumerate(idx):
-            for k, g in enumerate(geoms):
+            for n, k in enumerate(order):
                 if not near[j, k]:
                     continue
                 res.clear()
-                if coal.collide(g, coal.Transform3s(T[j, k, :3, :3], T[j, k, :3, 3]), scene.octree, ident, req, res):
+                if coal.collide(geoms[k], coal.Transform3s(T[j, k, :3, :3], T[j, k, :3, 3]), scene.octree, ident, req, res):
                     hit[i] = True
+                    order.insert(0, order.pop(n))
                     break
         return hit
 
