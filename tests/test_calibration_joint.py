@@ -167,3 +167,55 @@ def test_orthonormal_basis_is_numpys_qr():
     Q = _orthonormal_basis(G)
     assert Q.shape == (40, 8)
     assert np.allclose(Q, np.linalg.qr(G)[0], atol=1e-12) and np.allclose(Q.T @ Q, np.eye(8), atol=1e-12)
+
+
+def test_shift_from_the_pose_only_solve_is_measured_in_its_own_sigma():
+    """shifts_in_sigma: squared Mahalanobis distances per output block (rotation, translation) and for the
+    scale, each against its chi-square 99 % limit; outputs the pose-only solve does not determine are
+    left out."""
+    from bimanual_app.transforms import make_T, so3_exp
+    from calibration._guard import CHI2_99, shifts_in_sigma
+
+    I = np.eye(4)
+    T_pose = {"T_b1_b2": I, "T_e1_c1": I, "T_e2_c2": I}
+    sigma = {k: {"rotation_axes_deg": [1.0, 1.0, 2.0], "translation_mm": [2.0, 2.0, 4.0]} for k in T_pose}
+    sigma["T_e2_c2"] = {"rotation_axes_deg": [np.inf, 1.0, 1.0], "translation_mm": [1.0, 1.0, 1.0]}
+    sigma["scale"] = {"percent": 0.5}
+    T_joint = {"T_b1_b2": make_T(so3_exp(np.radians([0.0, 0.0, 4.0])), [0.006, 0.0, 0.0]),  # 2 sigma, 3 sigma
+               "T_e1_c1": make_T(np.eye(3), [0.0, 0.0, 0.016]),  # 4 sigma
+               "T_e2_c2": make_T(np.eye(3), [0.5, 0.0, 0.0])}  # undetermined: not judged
+    d = shifts_in_sigma(T_pose, 1.0, sigma, T_joint, 1.01)  # scale 1 % off: 2 sigma
+    assert set(d) == {"T_b1_b2 rotation", "T_b1_b2 translation", "T_e1_c1 rotation", "T_e1_c1 translation", "scale"}
+    assert np.allclose([d["T_b1_b2 rotation"][0], d["T_b1_b2 translation"][0], d["T_e1_c1 translation"][0],
+                        d["T_e1_c1 rotation"][0], d["scale"][0]], [4.0, 9.0, 16.0, 0.0, 4.0])
+    assert d["T_e1_c1 translation"][1] == CHI2_99[3] and d["scale"][1] == CHI2_99[1]
+    over = [k for k, (d2, lim) in d.items() if d2 > lim]
+    assert over == ["T_e1_c1 translation"]  # 4 sigma: past the 3.37 sigma limit; 3 sigma is not
+
+
+def test_point_maps_that_pull_past_the_pose_only_sigma_are_turned_down(synth_paper, monkeypatch):
+    """An accepted joint estimate that moves an output further than the pose-only solve's 99 % region is
+    not applied: the pose-only values stand and the warning names the output and the shift in sigma."""
+    import calibration._api as api
+    from bimanual_app.scene import load_scene
+    from calibration import CalibrationOptions, calibrate
+
+    scene = load_scene(synth_paper)
+    plain = calibrate(scene, options=CalibrationOptions(point_maps=False))
+    ok = calibrate(scene, options=CalibrationOptions(estimator="joint"))
+    assert ok.info["point_maps"]["accepted"] and max(ok.info["point_maps"]["shift_from_pose_only"].values()) < 3.37
+    # the same maps, judged against a pose-only solve that claims ten times the precision it has
+    real = api._check_shift
+
+    def overconfident(result, fit):
+        result.uncertainty = {k: ({kk: (np.asarray(vv) / 10).tolist() if kk in ("rotation_axes_deg", "translation_mm")
+                                   else vv for kk, vv in v.items()} if isinstance(v, dict) and k.startswith("T_") else v)
+                              for k, v in result.uncertainty.items()}
+        return real(result, fit)
+
+    monkeypatch.setattr(api, "_check_shift", overconfident)
+    res = calibrate(scene, options=CalibrationOptions(estimator="joint"))
+    pm = res.info["point_maps"]
+    assert not pm["accepted"] and "sigma of the pose-only solve" in pm["reason"]
+    assert np.allclose(res.T_b1_b2, plain.T_b1_b2) and np.allclose(res.T_e1_c1, plain.T_e1_c1)
+    assert any("point-map refinement not applied" in w and "sigma" in w for w in res.warnings)
