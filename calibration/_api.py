@@ -235,9 +235,7 @@ def _estimate_jointly(scene, result: CalibrationResult, options: CalibrationOpti
     noise = (np.radians(result.noise["rotation_deg"]), result.noise["translation_mm"] * 1e-3)
     pivot = np.asarray(result.noise.get("pivot_m", np.zeros(3)), dtype=np.float64)  # the pose-only noise model's
     fit = estimate_jointly(views, arms, E, P, start, noise, progress, pivot)
-    shifts = _check_shift(result, fit) if fit.accepted else {}
     report = _fit_report(scene, fit, rows, views)
-    report["shift_from_pose_only"] = {k: round(float(np.sqrt(d2)), 2) for k, (d2, _) in shifts.items()}
     for v in fit.dropped_views:
         result.warnings.append(f"the point map of {report['depth_factors'][v]['image']} contradicts its own pose "
                                "(depth factor or spread far from the other views'): left out of the joint estimate")
@@ -253,24 +251,6 @@ def _estimate_jointly(scene, result: CalibrationResult, options: CalibrationOpti
     if len(fit.residuals_before_m):
         result.diagnostics["point_map_residuals_m"] = (fit.residuals_before_m, fit.residuals_after_m)
     return report
-
-
-def _check_shift(result: CalibrationResult, fit) -> dict:
-    """The joint estimate's shifts from the pose-only ``result`` in its sigma (``_guard.shifts_in_sigma``);
-    an accepted ``fit`` that moves an output past the 99 % limit is turned down, with the reason."""
-    from ._guard import SHIFTED, shifts_in_sigma
-
-    st = fit.state
-    shifts = shifts_in_sigma({k: getattr(result, k) for k in SHIFTED}, result.scale, result.uncertainty,
-                             {k: getattr(st, k) for k in SHIFTED}, st.scale)
-    worst = max(shifts.items(), key=lambda kv: kv[1][0] / kv[1][1], default=None)
-    if worst is not None and worst[1][0] > worst[1][1]:
-        name, (d2, limit) = worst
-        fit.accepted = False
-        fit.reason = (f"the point maps would move {name} by {np.sqrt(d2):.1f} sigma of the pose-only solve (its 99 % "
-                      f"limit: {np.sqrt(limit):.1f}): further than the robot's poses allow, which points to an error "
-                      "in the maps the estimate does not model (a warp, a scale error shared by views)")
-    return shifts
 
 
 def _map_views(scene, result, rows, arms, E) -> list:

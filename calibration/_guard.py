@@ -15,7 +15,7 @@ import numpy as np
 
 from ._terms import robust_cost
 
-__all__ = ["held_out_cost", "jackknife_covariance", "shifts_in_sigma"]
+__all__ = ["held_out_cost", "jackknife_covariance"]
 
 
 def held_out_cost(J: np.ndarray, r: np.ndarray, view_of_row: np.ndarray, fitted_by: list[tuple[np.ndarray, np.ndarray]],
@@ -66,44 +66,3 @@ def jackknife_covariance(shift: np.ndarray) -> np.ndarray:
     V = len(shift)
     dev = shift - shift.mean(axis=0)
     return (V - 1) / V * dev.T @ dev
-
-
-CHI2_99 = {1: 6.635, 3: 11.345}  # the 99 % quantiles of chi-square with 1 and 3 degrees of freedom
-SHIFTED = ("T_b1_b2", "T_e1_c1", "T_e2_c2")
-
-
-def shifts_in_sigma(T_pose: dict, scale_pose: float, sigma_pose: dict, T_joint: dict, scale_joint: float) -> dict:
-    """How far the joint estimate lies from the pose-only one, in the pose-only one's own 1-sigma.
-
-    Args:
-        T_pose, T_joint: output name (``SHIFTED``) -> (4, 4) transform of each estimate.
-        scale_pose, scale_joint: their scales.
-        sigma_pose: the pose-only uncertainty (``calibration._uncertainty``: per output ``rotation_axes_deg``
-            and ``translation_mm`` per axis, the same local coordinates as here; ``scale`` ``percent``).
-
-    Returns: ``{"<output> rotation" / "<output> translation": (squared distance, its 99 % limit), "scale": ...}``
-    with each block's squared Mahalanobis distance over its axes (the axes taken as independent).
-
-    The joint estimate uses the pose-only one's data and more, so the two differ by less than the pose-only
-    one's own error when both are sound (the difference of an efficient and a consistent estimate has the
-    covariance of their difference, under the less precise one's: Hausman's specification test). A larger
-    shift says the added data pull the estimate where the robot's poses do not allow: point maps with an
-    error the estimate does not model (a warp, a scale error shared by views).
-    """
-    from bimanual_app.transforms import so3_log
-
-    out = {}
-    for name in SHIFTED:
-        s = sigma_pose.get(name) or {}
-        if not s or not np.all(np.isfinite(s["rotation_axes_deg"] + s["translation_mm"])):
-            continue  # an undetermined output cannot tell
-        R = T_joint[name][:3, :3] @ T_pose[name][:3, :3].T
-        z_rot = np.degrees(so3_log(R)) / np.maximum(s["rotation_axes_deg"], 1e-9)
-        z_tra = (T_joint[name][:3, 3] - T_pose[name][:3, 3]) * 1e3 / np.maximum(s["translation_mm"], 1e-9)
-        out[f"{name} rotation"] = (float(z_rot @ z_rot), CHI2_99[3])
-        out[f"{name} translation"] = (float(z_tra @ z_tra), CHI2_99[3])
-    pct = (sigma_pose.get("scale") or {}).get("percent", np.inf)
-    if np.isfinite(pct):
-        z = 100.0 * (scale_joint / scale_pose - 1.0) / max(pct, 1e-9)
-        out["scale"] = (float(z * z), CHI2_99[1])
-    return out
