@@ -109,6 +109,7 @@ class ArmReach:
         self.q_current = robot.neutral() if q_current is None else np.asarray(q_current, dtype=np.float64)
         self.solver = _solver or IKSolver(robot, link=robot.tcp_link)
         self._ik_cache: dict = {}  # see ``_first_ik``; shared with ``with_pregrasp`` copies (same arm, same IK)
+        self._reach_cache: dict = {}  # see ``__call__``; shared with ``with_pregrasp`` copies (same world)
         self.world = None
         if scene_points_b1 is not None:
             self.world = self._world(scene_points_b1)
@@ -308,17 +309,46 @@ class ArmReach:
             return f"{'grasp' if k == 0 else 'approach'} in collision: {why[0]}"
         return ""
 
+    REACH_CACHE = 4096  # grasps whose whole check (IK, approach, collisions) is remembered
+
     def __call__(self, T_b_g: np.ndarray, width: np.ndarray | None = None, retreat: np.ndarray | None = None,
                  hold_off: np.ndarray | None = None) -> ReachResult:
         """Reachability of grasps ``T_b_g`` (N, 4, 4) in this arm's base frame at openings ``width`` (N,);
         ``retreat`` (N, 3): unit directions (base frame) to the pre-grasp, default each grasp's -z;
-        ``hold_off`` (N, 3): where each approach ends, from the grasp (base frame; default: at the grasp)."""
+        ``hold_off`` (N, 3): where each approach ends, from the grasp (base frame; default: at the grasp).
+
+        Each grasp's outcome is remembered: the single-arm, two-arm and hand-over searches check many of
+        the same grasps (a third of them on a cluttered scene), and a check is a pure function of the grasp,
+        its opening, retreat and hold-off and this filter's settings (its IK seeds are deterministic)."""
         T_b_g = np.asarray(T_b_g, dtype=np.float64).reshape(-1, 4, 4)
         rt = None if retreat is None else np.asarray(retreat, dtype=np.float64).reshape(-1, 3)
         ho = None if hold_off is None else np.asarray(hold_off, dtype=np.float64).reshape(-1, 3)
         n = len(T_b_g)
-        J = self.robot.nq_arm
         w = np.full(n, self.gripper.min_width) if width is None else np.broadcast_to(np.asarray(width, float), (n,))
+        if self.max_seeds > 1 + self.solver.n_near:  # random seeds would make a repeat differ
+            return self._check(T_b_g, w, rt, ho)
+        setting = (self.pregrasp, self.q_current.tobytes(), self.max_seeds, self.n_solutions, self.max_step)
+        keys = [(T_b_g[i].tobytes(), float(w[i]), None if rt is None else rt[i].tobytes(),
+                 None if ho is None else ho[i].tobytes(), setting) for i in range(n)]
+        cache = self._reach_cache
+        todo = [i for i, key in enumerate(keys) if key not in cache]
+        if todo:
+            if len(cache) + len(todo) > self.REACH_CACHE:
+                cache.clear()
+            res = self._check(T_b_g[todo], w[todo], None if rt is None else rt[todo], None if ho is None else ho[todo])
+            for j, i in enumerate(todo):
+                cache[keys[i]] = (res.ok[j], res.q[j].copy(), res.q_pre[j].copy(), res.flipped[j], res.reason[j])
+        rows = [cache[key] for key in keys]
+        J = self.robot.nq_arm
+        return ReachResult(np.array([r[0] for r in rows], dtype=bool), np.array([r[1] for r in rows]).reshape(n, J),
+                           np.array([r[2] for r in rows]).reshape(n, J), np.array([r[3] for r in rows], dtype=bool),
+                           [r[4] for r in rows])
+
+    def _check(self, T_b_g: np.ndarray, w: np.ndarray, rt: np.ndarray | None, ho: np.ndarray | None) -> ReachResult:
+        """The reach check of ``__call__`` for grasps ``T_b_g`` (N, 4, 4), openings ``w`` (N,), retreats and
+        hold-offs (N, 3) or None, every grasp computed."""
+        n = len(T_b_g)
+        J = self.robot.nq_arm
         out = ReachResult(np.zeros(n, bool), np.full((n, J), np.nan), np.full((n, J), np.nan), np.zeros(n, bool), [""] * n)
         # the grasps' IK, as given and turned about z, all in one batch (most of the cost: failures try every seed)
         T_both = np.concatenate([T_b_g, rotate_about_approach(T_b_g)])

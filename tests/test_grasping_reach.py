@@ -128,3 +128,36 @@ def test_push_contacts_carry_their_standoff_as_the_hold_off():
     push = push_contacts(geo, sup, g, GripperCollider(g), SceneOctree(P[L < 0]))
     assert len(push)
     assert np.allclose(push.extra["hold_off"], -PushParams().standoff * push.extra["squeeze"])
+
+
+def test_a_grasp_checked_again_is_remembered_not_solved_again():
+    """The searches check many of the same grasps: a repeat (alone or among new grasps) gives the first
+    check's outcome without new IK; another pre-grasp distance or opening is a new check."""
+    from bimanual_app.robots import load_robot
+
+    robot, gripper = load_robot("piper"), load_gripper("piper")
+
+    def counted(f):
+        calls = []
+        solve_many = f.solver.solve_many
+        f.solver.solve_many = lambda *a, **k: calls.append(len(a[0])) or solve_many(*a, **k)
+        return calls
+
+    T, far, new = _tilted(), _tilted(90.0), _tilted(45.0)
+    far[:3, 3] = [1.2, 0.0, 0.1]
+    fresh = ArmReach(robot, gripper)
+    alone = counted(fresh)
+    fresh(new[None], np.array([0.05]))  # the IK a new grasp costs
+    f = ArmReach(robot, gripper)
+    first = f(np.stack([T, far]), np.array([0.05, 0.05]))
+    calls = counted(f)
+    again = f(np.stack([far, T, new]), np.array([0.05, 0.05, 0.05]))
+    assert calls == alone  # the repeats cost no IK
+    assert again.ok[:2].tolist() == first.ok[::-1].tolist() and again.reason[0] == first.reason[1]
+    assert np.array_equal(again.q[1], first.q[0]) and np.array_equal(again.q_pre[1], first.q_pre[0])
+    n = len(calls)
+    f(T[None], np.array([0.06]))  # another opening: checked anew
+    assert len(calls) > n
+    n = len(calls)
+    f.with_pregrasp(0.08)(T[None], np.array([0.05]))  # another approach line
+    assert len(calls) > n
