@@ -2,7 +2,7 @@
 
     nice .venv/bin/python bench/tasks.py [--set tuning|heldout] [--quick] [--scenes N] [--fresh] [--no-save]
         [--with-masks] [--jobs N] [--address ADDR] [--seeds 2,11,16 | --first-seed S --scenes N]
-        [--tasks handover] [--modes pipeline,oracle]
+        [--tasks handover] [--modes pipeline,oracle] [--blas-kernel SkylakeX]
 
 Two sets of ``bijcr synth`` scenes (8 views per arm, 5 objects, the emulator's "paper" noise), reported
 separately:
@@ -37,6 +37,9 @@ process): Ray starts on this machine with ``--jobs`` CPUs (default: all cores), 
 existing Ray cluster (every node needs this checkout and its .venv at the same path). The scenes and stage
 outputs are kept under ``runs/bench_tasks/`` and reused (``--fresh`` re-makes them). The full run (both
 sets, all default modes and both tasks) saves its table to docs/bench/tasks.md; any subset only prints.
+``--blas-kernel CORE`` runs the stages on another CPU's OpenBLAS kernels (numpy's OpenBLAS picks them from
+the CPU it runs on; the calibration's cloud then differs in its last digits, and on fragile scenes the
+outcome with it): the spread between two kernels on the same scenes is what to expect between machines.
 The exit code is 0 whenever the bench ran: FAIL rows are data.
 """
 
@@ -143,7 +146,7 @@ def run_scene(job: dict) -> dict:
     rows = {m: {} for m in modes}
     stage_t = {m: {} for m in modes}
     for mode in modes:
-        work = base / mode / scene.name
+        work = base / job.get("stages", {}).get(mode, mode) / scene.name
         if fresh and work.exists():
             shutil.rmtree(work)
         if mode in ("gt", "oracle"):
@@ -160,6 +163,36 @@ def run_scene(job: dict) -> dict:
                     stage_t[mode].setdefault(k, []).append(v)
     return {"seed": seed, "scene": scene.name, "rows": rows, "stage_t": stage_t, "synth_s": synth_dt,
             "wall": time.perf_counter() - t0}
+
+
+def stage_folders(modes: list[str], blas_kernel: str | None) -> dict[str, str]:
+    """Mode -> the folder (under the base) of its stage outputs: ``MODE``, or ``MODE-blas-CORE`` for a run on
+    another CPU's BLAS kernels (its stage outputs differ in their last digits, so they are kept apart)."""
+    return {m: f"{m}-blas-{blas_kernel}" if blas_kernel else m for m in modes}
+
+
+def blas_env(blas_kernel: str | None) -> dict[str, str]:
+    """The workers' extra environment: OpenBLAS built for every CPU (DYNAMIC_ARCH, as numpy's wheels are)
+    picks its kernels from the CPU it runs on, and ``OPENBLAS_CORETYPE`` names another one."""
+    return {"OPENBLAS_CORETYPE": blas_kernel} if blas_kernel else {}
+
+
+def blas_core(blas_kernel: str | None = None) -> str:
+    """The OpenBLAS kernels numpy runs with here (``OPENBLAS_CORETYPE=blas_kernel`` when given), as OpenBLAS
+    names them; ValueError for a name OpenBLAS does not know (it would fall back without saying so)."""
+    import subprocess
+
+    env = {**os.environ, "OPENBLAS_VERBOSE": "2", **blas_env(blas_kernel)}
+    if not blas_kernel:
+        env.pop("OPENBLAS_CORETYPE", None)
+    res = subprocess.run([sys.executable, "-c", "import numpy as np; np.ones((64, 64)) @ np.ones((64, 64))"],
+                         env=env, capture_output=True, text=True)
+    out = res.stdout + res.stderr  # where OpenBLAS writes its verbose lines depends on its version
+    if "Core not found" in out:
+        raise ValueError(f"--blas-kernel {blas_kernel}: OpenBLAS does not know this core type -> fix: one of its "
+                         "names, e.g. Haswell, SkylakeX, Zen, Sandybridge (OpenBLAS's TargetList.txt)")
+    found = [line.split(":", 1)[1].strip() for line in out.splitlines() if line.startswith("Core:")]
+    return found[-1] if found else "unknown"
 
 
 def crashed_scene(job: dict, err: Exception) -> dict:
@@ -202,6 +235,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--tasks", default=",".join(TASKS), help="comma-separated tasks (default both)")
     ap.add_argument("--modes", default=None,
                     help="comma-separated modes: pipeline, gt, oracle (default all three), masks")
+    ap.add_argument("--blas-kernel", default=None, metavar="CORE",
+                    help="run the stages with another CPU's OpenBLAS kernels (OPENBLAS_CORETYPE=CORE, e.g. "
+                         "SkylakeX, Haswell, Zen): how far the figures move between machines; stage outputs go "
+                         "to MODE-blas-CORE/ beside the default ones, the scenes are shared")
     return ap.parse_args(argv)
 
 
@@ -225,7 +262,7 @@ def choose(args: argparse.Namespace) -> tuple[list[int], list[str], list[str], b
         sets = [args.set] if args.set else list(SETS)
         seeds = [s for name in sets for s in SETS[name][:n]]
     full = (not args.seeds and args.first_seed is None and not args.quick and args.scenes is None
-            and args.set is None and modes == default_modes and tasks == list(TASKS))
+            and args.set is None and modes == default_modes and tasks == list(TASKS) and not args.blas_kernel)
     return seeds, modes, tasks, full
 
 
@@ -234,8 +271,14 @@ def main(argv=None) -> int:
 
     args = parse_args(argv)
     seeds, modes, tasks, full = choose(args)
+    if args.blas_kernel:
+        try:
+            _log(f"stages on OpenBLAS's {blas_core(args.blas_kernel)} kernels (this machine's own: {blas_core()})")
+        except ValueError as e:
+            raise SystemExit(str(e)) from None
     base = Path(args.base)
-    jobs = [{"base": str(base), "seed": s, "modes": modes, "fresh": args.fresh, "tasks": tasks} for s in seeds]
+    jobs = [{"base": str(base), "seed": s, "modes": modes, "fresh": args.fresh, "tasks": tasks,
+             "stages": stage_folders(modes, args.blas_kernel)} for s in seeds]
     cpus = args.jobs or os.cpu_count() or 1
     _log(f"{len(jobs)} scenes x {len(modes)} modes x {len(tasks)} tasks on Ray "
          + (f"at {args.address}" if args.address else f"(local, {cpus} CPUs)"))
@@ -248,7 +291,7 @@ def main(argv=None) -> int:
             _log(scene_line(done, total, res))
 
     results = map_scenes(run_scene, jobs, address=args.address, num_cpus=cpus, progress=progress,
-                         return_exceptions=True)
+                         env=blas_env(args.blas_kernel), return_exceptions=True)
     results = [crashed_scene(j, r) if isinstance(r, SceneError) else r for j, r in zip(jobs, results)]
     total = time.perf_counter() - t_all
     text = report(results, modes, tasks, total, args, cpus, sys.argv[1:] if argv is None else list(argv))

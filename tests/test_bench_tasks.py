@@ -58,6 +58,20 @@ def test_choose_full_run_and_subsets():
         bench_tasks.choose(bench_tasks.parse_args(["--modes", "pipline"]))
 
 
+def test_another_cpus_blas_kernels_run_beside_the_default_stage_outputs():
+    """``--blas-kernel``: the workers get OPENBLAS_CORETYPE, the stage outputs their own folders (the scenes
+    stay shared), the run never rewrites the docs, and a core OpenBLAS does not know is refused."""
+    args = bench_tasks.parse_args(["--set", "heldout", "--blas-kernel", "SkylakeX"])
+    _, modes, _, full = bench_tasks.choose(args)
+    assert not full
+    assert bench_tasks.stage_folders(modes, "SkylakeX")["pipeline"] == "pipeline-blas-SkylakeX"
+    assert bench_tasks.stage_folders(modes, None) == {m: m for m in modes}
+    assert bench_tasks.blas_env("SkylakeX") == {"OPENBLAS_CORETYPE": "SkylakeX"} and bench_tasks.blas_env(None) == {}
+    assert bench_tasks.blas_core("Sandybridge") == "Sandybridge"
+    with pytest.raises(ValueError, match="does not know"):
+        bench_tasks.blas_core("NoSuchCore")
+
+
 def _results(outcomes: dict[str, list[bool]]) -> list[dict]:
     """Fake scene results: mode -> success per scene (joint grasp only)."""
     n = len(next(iter(outcomes.values())))
