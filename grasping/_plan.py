@@ -20,6 +20,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import partial
 
 import numpy as np
 
@@ -144,6 +145,8 @@ class ObjectPlan:
     mass_estimate: float = 0.0
     stats: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
+    #: a hand-over search with fresh grasp draws, run by ``plan_grasps`` only when no object has a hand-over
+    redraw: Callable[[], list] | None = field(default=None, repr=False, compare=False)
 
     def pair_grasps(self, pair: JointPair) -> tuple[ArmGrasps, ArmGrasps]:
         """The primary's and the secondary's reachable grasp sets a joint pair indexes into."""
@@ -429,11 +432,71 @@ def _handover(plan: ObjectPlan, support: Support, gripper: GripperModel, collide
             plan.giver_picks = GraspSet.concat([plan.grasps, shallow])
             for givers in {id(h.givers): h.givers for h in found}.values():
                 givers.index = givers.index + len(plan.grasps)
+    if not found and params.handover_params.redraws:
+        plan.redraw = partial(_redraw_handovers, plan, support, gripper, collider, arms, check, params, obstacles_b1,
+                              blocked, closed, free_params)
+    _set_handover(plan, found)
+
+
+NO_HANDOVER = ("no hand-over found: no transfer pose where the primary holds it and the secondary reaches a grasp"
+               " clear of the primary's fingers")
+
+
+def _set_handover(plan: ObjectPlan, found: list) -> None:
+    """The best of ``found`` as the plan's hand-over, the rest as its alternatives; a note when none."""
     plan.handover = found[0] if found else None
     plan.handover_alternatives = found[1:]
-    if plan.handover is None:
-        plan.notes.append("no hand-over found: no transfer pose where the primary holds it and the secondary"
-                          " reaches a grasp clear of the primary's fingers")
+    plan.notes = [n for n in plan.notes if n != NO_HANDOVER] + ([] if found else [NO_HANDOVER])
+
+
+def _redraw_where_none(plans: list[ObjectPlan], log: Callable[[str], None] = _log_default) -> None:
+    """When no object has a hand-over, each object whose search found none searches again with fresh grasp
+    draws (``_redraw_handovers``); a scene that has one already keeps its plans (the draws cost a second or
+    two per object, and the task needs one object)."""
+    if any(p.handover is not None for p in plans):
+        return
+    for p in plans:
+        if p.redraw is not None:
+            t1 = time.perf_counter()
+            _set_handover(p, p.redraw())
+            p.timings["handover_redraw"] = time.perf_counter() - t1
+            p.timings["total"] = p.timings.get("total", 0.0) + p.timings["handover_redraw"]
+            log(f"object {p.id}: no object had a hand-over; grasps drawn again: "
+                f"{'hand-over found' if p.handover is not None else 'none'} ({p.timings['handover_redraw']:.2f} s)")
+
+
+def _redraw_handovers(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: GripperCollider,
+                      arms: dict[str, Arm], check: TwoArmCheck | None, params: PlanParams, obstacles_b1: np.ndarray,
+                      blocked: SceneOctree, closed, free_params: SamplerParams) -> list:
+    """No hand-over from the first draws: the receiver's grasps and the giver's picks drawn again with other
+    seeds (``HandoverParams.redraws`` times; the picks denser, with the primary's approach hints), searched as
+    the shallow holds are. The first draws stay in the plan when none is found."""
+    reach = arms["primary"].reach
+    hints = reach.approach_hints(plan.geometry.centre) if hasattr(reach, "approach_hints") else None
+    first_free, first_picks, stats = plan.free_grasps, plan.giver_picks, plan.stats.get("handover", {})
+    sp = params.sampler
+    for k in range(1, params.handover_params.redraws + 1):
+        seed = sp.seed + 100 * k  # away from the picks' own retry (seed + 1)
+        unseen = plan.unseen if plan.unseen is not None else np.zeros((0, 3))
+        plan.free_grasps, _ = sample_grasps(closed, support, gripper, collider, SceneOctree(unseen, params.octree_resolution),
+                                            replace(free_params, seed=seed))
+        picks, _ = sample_grasps(plan.geometry, support, gripper, collider, blocked,
+                                 replace(sp, seed=seed, n_candidates=sp.n_candidates * params.retry_factor),
+                                 approach_hints=hints)
+        if not len(picks) or not len(plan.free_grasps):
+            continue
+        plan.giver_picks = picks
+        found = _search_handovers(plan, support, collider, arms, check, params, obstacles_b1, closed, reached=False)
+        plan.stats["handover"]["redraw"] = k
+        if found:
+            # as for the shallow holds: giver_picks = the picks, then this draw; the givers' indices shifted
+            plan.giver_picks = GraspSet.concat([plan.grasps, picks])
+            for givers in {id(h.givers): h.givers for h in found}.values():
+                givers.index = givers.index + len(plan.grasps)
+            return found
+    plan.free_grasps, plan.giver_picks = first_free, first_picks
+    plan.stats["handover"] = {**stats, "redraws_tried": params.handover_params.redraws}
+    return []
 
 
 def _search_handovers(plan: ObjectPlan, support: Support, collider: GripperCollider, arms: dict[str, Arm],
@@ -486,5 +549,6 @@ def plan_grasps(cloud: SceneCloud, gripper: GripperModel | None = None, arms: di
     support = estimate_support(cloud.points, cloud.labels, cloud.table_plane)
     collider = GripperCollider(gripper, params.sampler.approach)
     plans = [plan_object(k, cloud, support, gripper, collider, arms, T_b1_b2, params, src, log) for k in ids]
+    _redraw_where_none(plans, log)
     return GraspPlan(support, gripper, plans, sorted(arms) if arms else [], T_b1_b2, params,
                      {"total": time.perf_counter() - t0})

@@ -202,6 +202,58 @@ def test_handover_giver_may_hold_the_object_shallow(monkeypatch):
     assert plan_to_dict(plan2)["objects"][0]["handover"]["giver"]["grasp_rank"] is None  # not one of the picks
 
 
+def test_handover_grasps_are_drawn_again_when_no_draw_gave_one(monkeypatch):
+    """When neither the picks nor the shallow holds give a hand-over, both grasp sets are drawn again with
+    other seeds and searched; a hand-over from that draw points at its own giver; with none found, the plan
+    keeps the first draws and says that it tried."""
+    import grasping._plan as gplan
+    from grasping import HandoverParams, plan_to_dict
+
+    P, L = make_cloud([Obj("cylinder", (0.3, 0.2), (0.05, 0.05, 0.10))])
+    params = PlanParams(retry_factor=1)
+    real, calls = gplan.plan_handovers, []
+
+    def none_until(n):
+        def search(geo, support, givers, free, *args, **kw):
+            found, stats = real(geo, support, givers, free, *args, **kw)
+            calls.append((givers.grasps.T_b1_g.copy(), free.T_b1_g.copy()))
+            return (found if len(calls) > n else []), stats
+        return search
+
+    monkeypatch.setattr(gplan, "plan_handovers", none_until(2))  # the picks, then the shallow holds: none
+    plan = plan_grasps(scene_cloud(P, L), arms=accept_all_arms(T12), T_b1_b2=T12, params=params)
+    op = plan.objects[0]
+    assert len(calls) == 3 and op.stats["handover"]["redraw"] == 1
+    assert not np.array_equal(calls[2][1], calls[0][1])  # the receivers drawn again
+    assert not any(np.array_equal(calls[2][0], c[0]) for c in calls[:2])  # and the givers
+    h = op.handover
+    assert h is not None and np.array_equal(op.free_grasps.T_b1_g, calls[2][1])
+    gi = h.givers.index[h.giver_index]  # past the picks, at the redrawn giver it is
+    assert gi >= len(op.grasps) and np.allclose(op.giver_picks.T_b1_g[gi], h.givers.grasps.T_b1_g[h.giver_index])
+    assert plan_to_dict(plan)["objects"][0]["handover"]["giver"]["grasp_rank"] is None  # not one of the picks
+
+    calls.clear()
+    monkeypatch.setattr(gplan, "plan_handovers", none_until(99))
+    op = plan_grasps(scene_cloud(P, L), arms=accept_all_arms(T12), T_b1_b2=T12, params=params).objects[0]
+    assert op.handover is None and len(calls) == 2 + HandoverParams().redraws
+    assert op.stats["handover"]["redraws_tried"] == HandoverParams().redraws
+    assert np.array_equal(op.free_grasps.T_b1_g, calls[0][1])  # the first draw kept
+
+
+def test_handover_grasps_are_drawn_again_only_where_no_object_has_a_hand_over():
+    from grasping._plan import NO_HANDOVER, ObjectPlan, _redraw_where_none
+
+    calls = []
+    found = ObjectPlan(0, None, "single", handover="a hand-over")
+    none = ObjectPlan(1, None, "single", notes=[NO_HANDOVER], redraw=lambda: calls.append(1) or ["another"])
+    _redraw_where_none([found, none])
+    assert not calls and none.handover is None  # the scene has one: no draws
+    found.handover = None
+    _redraw_where_none([found, none])
+    assert calls == [1] and none.handover == "another" and NO_HANDOVER not in none.notes
+    assert "handover_redraw" in none.timings
+
+
 def test_handover_transfer_pose_keeps_the_object_clear_of_the_scene():
     """A tall box stands right where the transfer pose would be by preference (above the middle of the
     line between the bases): the hand-over moves the object elsewhere, clear of it by the clearance."""
