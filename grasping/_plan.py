@@ -406,8 +406,8 @@ def _handover(plan: ObjectPlan, support: Support, gripper: GripperModel, collide
                           clearance=max(params.sampler.clearance, params.handover_params.receiver_clearance))
     # the space around the object no camera saw into stays solid for the receiver (it moves with the object)
     unseen = plan.unseen if plan.unseen is not None else np.zeros((0, 3))
-    plan.free_grasps, _ = sample_grasps(closed, support, gripper, collider, SceneOctree(unseen, params.octree_resolution),
-                                        free_params)
+    receiver_blocked = SceneOctree(unseen, params.octree_resolution)
+    plan.free_grasps, _ = sample_grasps(closed, support, gripper, collider, receiver_blocked, free_params)
     # the giver holds the object where it leaves the receiver room, not where a single-arm pick is best
     plan.giver_picks = plan.grasps
     found = _search_handovers(plan, support, collider, arms, check, params, obstacles_b1, closed)
@@ -417,25 +417,34 @@ def _handover(plan: ObjectPlan, support: Support, gripper: GripperModel, collide
         # shallow depths only, with the primary's approach hints: the giver is the primary). Only then: on
         # the task bench, offered alongside the picks, shallow holds displaced deep ones that had worked
         # (seed 3's can).
-        reach = arms["primary"].reach
-        hints = reach.approach_hints(plan.geometry.centre) if hasattr(reach, "approach_hints") else None
         shallow, _ = sample_grasps(plan.geometry, support, gripper, collider, blocked,
                                    replace(params.sampler, depths=params.handover_params.shallow_depths),
-                                   approach_hints=hints)
+                                   approach_hints=_primary_hints(plan, arms))
         if len(shallow):
             plan.giver_picks = shallow
             found = _search_handovers(plan, support, collider, arms, check, params, obstacles_b1, closed,
                                       reached=False)
             plan.stats["handover"]["shallow_picks"] = len(shallow)
-            # giver_picks: the picks, then the shallow holds; the givers' indices point into it (a giver's
-            # index is never taken for a pick's: grasps.json's giver.grasp_rank stays null)
-            plan.giver_picks = GraspSet.concat([plan.grasps, shallow])
-            for givers in {id(h.givers): h.givers for h in found}.values():
-                givers.index = givers.index + len(plan.grasps)
+            _after_the_picks(plan, shallow, found)
     if not found and params.handover_params.redraws:
         plan.redraw = partial(_redraw_handovers, plan, support, gripper, collider, arms, check, params, obstacles_b1,
-                              blocked, closed, free_params)
+                              blocked, receiver_blocked, closed, free_params)
     _set_handover(plan, found)
+
+
+def _primary_hints(plan: ObjectPlan, arms: dict[str, Arm]) -> np.ndarray | None:
+    """(K, 3) approach directions with which the primary (the giver) reaches near the object, or None."""
+    reach = arms["primary"].reach
+    return reach.approach_hints(plan.geometry.centre) if hasattr(reach, "approach_hints") else None
+
+
+def _after_the_picks(plan: ObjectPlan, extra: GraspSet, found: list) -> None:
+    """Givers searched among ``extra`` (shallow holds, a second draw): ``plan.giver_picks`` becomes the picks,
+    then ``extra``, and the found hand-overs' giver indices point past the picks into it (a giver's index is
+    never taken for a pick's: grasps.json's giver.grasp_rank stays null)."""
+    plan.giver_picks = GraspSet.concat([plan.grasps, extra])
+    for givers in {id(h.givers): h.givers for h in found}.values():
+        givers.index = givers.index + len(plan.grasps)
 
 
 NO_HANDOVER = ("no hand-over found: no transfer pose where the primary holds it and the secondary reaches a grasp"
@@ -453,12 +462,15 @@ def _redraw_where_none(plans: list[ObjectPlan], log: Callable[[str], None] = _lo
     """When no object has a hand-over, each object whose search found none searches again with fresh grasp
     draws (``_redraw_handovers``); a scene that has one already keeps its plans (the draws cost a second or
     two per object, and the task needs one object)."""
+    redraws = [p.redraw for p in plans]
+    for p in plans:  # the searches hold the object's octrees and geometry: not kept past the stage
+        p.redraw = None
     if any(p.handover is not None for p in plans):
         return
-    for p in plans:
-        if p.redraw is not None:
+    for p, redraw in zip(plans, redraws):
+        if redraw is not None:
             t1 = time.perf_counter()
-            _set_handover(p, p.redraw())
+            _set_handover(p, redraw())
             p.timings["handover_redraw"] = time.perf_counter() - t1
             p.timings["total"] = p.timings.get("total", 0.0) + p.timings["handover_redraw"]
             log(f"object {p.id}: no object had a hand-over; grasps drawn again: "
@@ -467,18 +479,16 @@ def _redraw_where_none(plans: list[ObjectPlan], log: Callable[[str], None] = _lo
 
 def _redraw_handovers(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: GripperCollider,
                       arms: dict[str, Arm], check: TwoArmCheck | None, params: PlanParams, obstacles_b1: np.ndarray,
-                      blocked: SceneOctree, closed, free_params: SamplerParams) -> list:
+                      blocked: SceneOctree, receiver_blocked: SceneOctree, closed, free_params: SamplerParams) -> list:
     """No hand-over from the first draws: the receiver's grasps and the giver's picks drawn again with other
     seeds (``HandoverParams.redraws`` times; the picks denser, with the primary's approach hints), searched as
     the shallow holds are. The first draws stay in the plan when none is found."""
-    reach = arms["primary"].reach
-    hints = reach.approach_hints(plan.geometry.centre) if hasattr(reach, "approach_hints") else None
+    hints = _primary_hints(plan, arms)
     first_free, first_picks, stats = plan.free_grasps, plan.giver_picks, plan.stats.get("handover", {})
     sp = params.sampler
     for k in range(1, params.handover_params.redraws + 1):
         seed = sp.seed + 100 * k  # away from the picks' own retry (seed + 1)
-        unseen = plan.unseen if plan.unseen is not None else np.zeros((0, 3))
-        plan.free_grasps, _ = sample_grasps(closed, support, gripper, collider, SceneOctree(unseen, params.octree_resolution),
+        plan.free_grasps, _ = sample_grasps(closed, support, gripper, collider, receiver_blocked,
                                             replace(free_params, seed=seed))
         picks, _ = sample_grasps(plan.geometry, support, gripper, collider, blocked,
                                  replace(sp, seed=seed, n_candidates=sp.n_candidates * params.retry_factor),
@@ -489,10 +499,7 @@ def _redraw_handovers(plan: ObjectPlan, support: Support, gripper: GripperModel,
         found = _search_handovers(plan, support, collider, arms, check, params, obstacles_b1, closed, reached=False)
         plan.stats["handover"]["redraw"] = k
         if found:
-            # as for the shallow holds: giver_picks = the picks, then this draw; the givers' indices shifted
-            plan.giver_picks = GraspSet.concat([plan.grasps, picks])
-            for givers in {id(h.givers): h.givers for h in found}.values():
-                givers.index = givers.index + len(plan.grasps)
+            _after_the_picks(plan, picks, found)
             return found
     plan.free_grasps, plan.giver_picks = first_free, first_picks
     plan.stats["handover"] = {**stats, "redraws_tried": params.handover_params.redraws}
