@@ -462,15 +462,12 @@ def _redraw_where_none(plans: list[ObjectPlan], log: Callable[[str], None] = _lo
     """When no object has a hand-over, each object whose search found none searches again with fresh grasp
     draws (``_redraw_handovers``); a scene that has one already keeps its plans (the draws cost a second or
     two per object, and the task needs one object)."""
-    redraws = [p.redraw for p in plans]
-    for p in plans:  # the searches hold the object's octrees and geometry: not kept past the stage
-        p.redraw = None
     if any(p.handover is not None for p in plans):
         return
-    for p, redraw in zip(plans, redraws):
-        if redraw is not None:
+    for p in plans:
+        if p.redraw is not None:
             t1 = time.perf_counter()
-            _set_handover(p, redraw())
+            _set_handover(p, p.redraw())
             p.timings["handover_redraw"] = time.perf_counter() - t1
             p.timings["total"] = p.timings.get("total", 0.0) + p.timings["handover_redraw"]
             log(f"object {p.id}: no object had a hand-over; grasps drawn again: "
@@ -557,5 +554,7 @@ def plan_grasps(cloud: SceneCloud, gripper: GripperModel | None = None, arms: di
     collider = GripperCollider(gripper, params.sampler.approach)
     plans = [plan_object(k, cloud, support, gripper, collider, arms, T_b1_b2, params, src, log) for k in ids]
     _redraw_where_none(plans, log)
+    for p in plans:  # the deferred searches hold each object's octrees and geometry: not kept with the plan
+        p.redraw = None
     return GraspPlan(support, gripper, plans, sorted(arms) if arms else [], T_b1_b2, params,
                      {"total": time.perf_counter() - t0})
