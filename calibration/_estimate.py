@@ -12,7 +12,7 @@ from . import _joint as jm
 from ._absolute import normal_covariance
 from ._guard import held_out_cost, jackknife_covariance
 from ._pointmaps import StackedViews, find_pairs, map_residuals, view_camera_poses
-from ._terms import CostTerm, solve_terms, stack, update_terms
+from ._terms import CostTerm, redundancy, solve_terms, stack, update_terms
 
 __all__ = ["JointFit", "estimate_jointly"]
 
@@ -244,29 +244,62 @@ def _estimate(views, arms, E, P, start, pose_noise, progress, pivot=None) -> Joi
     views = StackedViews(views)  # the views' flat arrays are built once for every pair search below
     samples, targets = _sample(views, POINTS_PER_VIEW), _sample(views, TARGETS_PER_VIEW, 1)
     active = ~contradicting_views(views, P, start, samples, targets)
-    st, rounds, pairs = start, [], None
-    noise = {"pose": tuple(pose_noise), "kappa": jm.KAPPA_SIGMA, "pair": PAIR_SIGMA0,
-             "pivot": None if pivot is None or not np.any(pivot) else np.asarray(pivot, dtype=np.float64)}
+    pivot = None if pivot is None or not np.any(pivot) else np.asarray(pivot, dtype=np.float64)
+
+    def fit_at(level: float, rounds: list):
+        noise = {"pose": tuple(pose_noise), "kappa": level, "pair": PAIR_SIGMA0, "pivot": pivot}
+        return _fit_rounds(views, arms, E, P, start, noise, samples, targets, active, rounds, progress)
+
+    rounds = []
+    st, pairs, noise = fit_at(jm.KAPPA_SIGMA, rounds)
+    if st is None:  # pairs: why not
+        return JointFit(start, False, pairs, rounds=rounds)
+    level = _depth_level(st, views, pairs, arms, E, P, noise)
+    if level > jm.KAPPA_SIGMA * (1.0 + 1e-6):
+        # the factors spread wider than the prior allows: solved again from the start with the prior at the
+        # level they show (at most KAPPA_CAP)
+        if progress:
+            progress(f"joint estimate: the depth factors spread {level * 100:.2f} % (prior {jm.KAPPA_SIGMA * 100:.2f} %): "
+                     f"solving again with that prior")
+        again = fit_at(level, rounds)
+        if again[0] is not None:
+            st, pairs, noise = again
+    return _conclude(start, st, views, pairs, arms, E, P, noise, rounds, active)
+
+
+def _fit_rounds(views, arms, E, P, start, noise, samples, targets, active, rounds: list, progress):
+    """The rounds of point pairs from the coarsest radius to convergence, from ``start`` with the noise levels
+    ``noise`` (updated in place; each round appended to ``rounds``). Returns ``(state, pairs, noise)``, or
+    ``(None, reason, noise)`` when the maps overlap too little."""
+    st, pairs = start, None
     schedule = list(RADII) + [RADII[-1]] * MAX_FINE_ROUNDS
     for k, radius in enumerate(schedule):
         pairs = _pairs_at(views, st, samples, targets, radius, active)
         n = 0 if pairs is None else len(pairs)
         if n < MIN_PAIRS:
-            return JointFit(start, False, f"the point maps overlap too little: {n} point pairs within "
-                                          f"{radius * 1e3:.0f} mm (needs {MIN_PAIRS})", rounds=rounds)
+            return None, (f"the point maps overlap too little: {n} point pairs within {radius * 1e3:.0f} mm "
+                          f"(needs {MIN_PAIRS})"), noise
         if "map" not in noise:
             noise["map"] = _initial_map_noise(st, views, pairs)
         st, moved = _round(st, views, pairs, arms, E, P, noise, passes=2 if k >= len(RADII) - 1 else 1)
         after = map_residuals(np.zeros(19), st.kappa, views, st.calibration, pairs)
         rounds.append({"radius_m": radius, "pairs": n, "rms_m": float(np.sqrt(np.mean(after ** 2))), "moved_m": moved,
-                       "pair_noise": noise["pair"]})
+                       "pair_noise": noise["pair"], "depth_prior": noise["kappa"]})
         if progress:
             progress(f"joint estimate: {radius * 1e3:.0f} mm round, {n} point pairs, moved {moved * 1e3:.2f} mm, "
                      f"loop noise {np.degrees(noise['pose'][0]):.2f} deg / {noise['pose'][1] * 1e3:.1f} mm, "
                      f"maps {np.median(noise['map']) * 1e3:.2f} mm, pair summaries x {noise['pair']:.1f}")
         if k >= len(RADII) - 1 and moved < CONVERGED_M:
             break
-    return _conclude(start, st, views, pairs, arms, E, P, noise, rounds, active)
+    return st, pairs, noise
+
+
+def _depth_level(st, views, pairs, arms, E, P, noise) -> float:
+    """The depth factors' prior level the data show at ``st``: the prior's level times the root of its rows'
+    variance factor, between KAPPA_SIGMA and KAPPA_CAP."""
+    r, J = stack(_terms(st, views, pairs, arms, E, P, noise), np.zeros(jm.N_CAL + len(views)))
+    spread = noise["kappa"] * np.sqrt(_prior_variance_factor(J, r, len(views) + 2))
+    return float(np.clip(spread, jm.KAPPA_SIGMA, jm.KAPPA_CAP))
 
 
 def _conclude(start, st, views, pairs, arms, E, P, noise, rounds, active) -> JointFit:
@@ -290,8 +323,10 @@ def _conclude(start, st, views, pairs, arms, E, P, noise, rounds, active) -> Joi
     terms = _terms(st, views, pairs, arms, E, P, noise)
     pose_st = _fit_depth_only(start, views, pairs, arms, E, P, noise)
     fit.held_out, shifts = _held_out(terms, _terms(pose_st, views, pairs, arms, E, P, noise), V)
-    _, J = stack(terms, np.zeros(jm.N_CAL + V))
-    fit.covariance = _covariance(J, shifts)
+    r, J = stack(terms, np.zeros(jm.N_CAL + V))
+    f = _prior_variance_factor(J, r, V + 2)
+    fit.noise["depth_factor_spread"] = float(noise["kappa"] * np.sqrt(f))
+    fit.covariance = _covariance(J, shifts, V + 2, float(terms[2].sigma[0]) ** 2 * f)
     ho = fit.held_out
     if ho["gain"] <= ho["gain_se"]:
         # the one-standard-error rule: the simpler estimate stands unless the richer one predicts the views
@@ -304,17 +339,42 @@ def _conclude(start, st, views, pairs, arms, E, P, noise, rounds, active) -> Joi
     return fit
 
 
-def _covariance(J: np.ndarray, shifts: np.ndarray) -> np.ndarray:
+def _covariance(J: np.ndarray, shifts: np.ndarray, n_prior: int, kappa_var: float) -> np.ndarray:
     """(25 + V, 25 + V) covariance of the corrections: the delete-one-view jackknife's for the calibration
     (views are the independent units; the normal matrix counts a view's correlated residuals as independent
-    evidence), the normal matrix's for the depth factors, and ``inf`` where the data determine nothing."""
+    evidence) plus the depth-factor prior's share (:func:`_prior_share`), the normal matrix's for the depth
+    factors, and ``inf`` where the data determine nothing. J: (M, 25 + V) whitened, the prior's ``n_prior``
+    rows last; shifts: (V, 25 + V) the estimate's shifts without each view; kappa_var: the depth factors'
+    actual variance."""
     C = normal_covariance(J.T @ J)[0]
-    jack = jackknife_covariance(shifts[:, :jm.N_CAL])
+    jack = jackknife_covariance(shifts[:, :jm.N_CAL]) + _prior_share(C, J[len(J) - n_prior:], kappa_var)
     finite = np.isfinite(np.diag(C)[:jm.N_CAL])
     blk = C[:jm.N_CAL, :jm.N_CAL]
     blk[np.ix_(finite, finite)] = jack[np.ix_(finite, finite)]
     C[:jm.N_CAL, :jm.N_CAL] = blk
     return C
+
+
+def _prior_variance_factor(J: np.ndarray, r: np.ndarray, n_prior: int) -> float:
+    """The per-view depth-factor rows' a-posteriori variance factor, at least 1: how much wider the fitted
+    factors spread than the prior says (``sum r^2 / sum (1 - h_jj)`` over those rows). J: (M, n) and r: (M,)
+    whitened, the prior's ``n_prior`` rows last (one per view, then the two arms' means)."""
+    rows = slice(len(r) - n_prior, len(r) - 2)
+    red = redundancy(J)[0][rows]
+    return max(1.0, float(np.sum(r[rows] ** 2) / max(float(np.sum(red)), 1e-9)))
+
+
+def _prior_share(C: np.ndarray, Jp: np.ndarray, kappa_var: float) -> np.ndarray:
+    """(25, 25) the calibration's covariance from the depth-factor prior's errors.
+
+    The prior's whitened rows ``Jp`` (V + 2, 25 + V) (one per view, then the two arms' means) belong to no
+    view, so the jackknife cannot see their errors. Their pseudo-observation is zero; the truth is each
+    view's actual depth factor, of variance ``kappa_var`` (the prior's level times the variance factor of
+    :func:`_prior_variance_factor`). For row errors ``e = Jp[:, kappa] kappa`` the estimate moves by
+    ``-C Jp^T e`` (``C`` (25 + V, 25 + V) the normal matrix's inverse), hence ``kappa_var G G^T`` with
+    ``G = C Jp^T Jp[:, kappa]``."""
+    G = np.where(np.isfinite(C), C, 0.0) @ Jp.T @ Jp[:, jm.N_CAL:]
+    return kappa_var * (G @ G.T)[:jm.N_CAL, :jm.N_CAL]
 
 
 def _noise_report(noise: dict) -> dict:

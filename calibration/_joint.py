@@ -15,7 +15,8 @@ Cost terms (``calibration._terms``), each whitened by noise levels estimated fro
   pair of views into the 8 numbers a pair can tell (:func:`map_term`), whose noise level is estimated by
   variance components over the pairs: correlated errors (a view's depth warp) show up there, where a
   count of raw distances would take them for independent evidence;
-- **depth factors**: the prior ``kappa_v ~ N(0, KAPPA_SIGMA)``, each arm's mean held at zero.
+- **depth factors**: the prior ``kappa_v ~ N(0, sigma)``, each arm's mean held at zero; ``sigma`` is
+  KAPPA_SIGMA, or the fitted factors' spread up to KAPPA_CAP when they show more.
 
 Exact poses with noisy maps: the loop's residuals are tiny, its weight is high, the maps barely move the
 answer. Noisy poses with maps that agree: the loop's weight is low, the maps decide.
@@ -38,11 +39,16 @@ __all__ = ["JointState", "N_CAL", "perturb", "pose_term", "map_term", "depth_pri
 
 N_CAL = 25  # calibration unknowns in theta before the per-view depth factors
 MAP_SIGMA_FLOOR = 2e-4  # m: no point map agrees better than this
-#: the per-view depth factors' prior spread: fixed, not estimated. Estimated from the fit (variance
-#: components), their spread absorbs hand-eye and scale errors (a camera moved along its optical axis looks
-#: like a depth factor): measured on rendered scenes it came out at 0.4-0.7 % where the maps had none, and
-#: the hand-eye translations 3x worse; at 0.1 % the real capture gains most of what free factors gave.
+#: the per-view depth factors' prior: its level where the maps show no wider spread (the floor), and the
+#: most the data may raise it to. The estimate is solved at the floor; when the fitted factors spread wider
+#: (the prior rows' variance factor), it is solved again from the start with the prior at that spread, at
+#: most KAPPA_CAP (estimate._depth_level). Iterated freely (variance components), the factors' spread
+#: absorbs hand-eye and scale errors (a camera moved along its optical axis looks like a depth factor):
+#: 0.4-0.7 % on rendered scenes whose maps had none, hand-eye translations 3x worse. Measured on rendered
+#: scenes 300-319 (paper pose noise; docs/calibration.md): with 1 % depth-scale errors a fixed prior of
+#: 0.1 / 0.3 / 1 / 3 % gave hand-eyes 6.1 / 3.7 / 3.8 / 4.6 mm; without them 0.1 % gave 2.4 mm, 0.3 % 3.1 mm.
 KAPPA_SIGMA = 1e-3
+KAPPA_CAP = 3e-3
 MEAN_KAPPA_SIGMA = 1e-4  # each arm's mean depth factor: held at zero (see depth_prior_term)
 #: point-to-plane distances are weighted (Huber, knee HUBER_K of the view's noise) at each round's start
 #: and left out beyond TRIM of it: the pair summaries are plain least squares, so robustness is per point
