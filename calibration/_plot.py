@@ -172,6 +172,16 @@ def save_calibration_figure(path: Path, result, T_b1_e: np.ndarray, T_w_c1: np.n
 
 
 
+def _fits(rounds: list[dict]) -> list[list[dict]]:
+    """The rounds split into the fits that made them: a new fit starts where the depth prior changes."""
+    fits: list[list[dict]] = []
+    for q in rounds:
+        if not fits or q.get("depth_prior") != fits[-1][-1].get("depth_prior"):
+            fits.append([])
+        fits[-1].append(q)
+    return fits
+
+
 def save_point_map_figure(path: Path, before_m: np.ndarray, after_m: np.ndarray, report: dict, title: str = "") -> None:
     """point_maps.png: how far overlapping views lie from each other (point-to-plane, mm) with the joint
     solve and after the point-map refinement, and the RMS of each ICP round.
@@ -195,10 +205,16 @@ def save_point_map_figure(path: Path, before_m: np.ndarray, after_m: np.ndarray,
     h.set_ylabel("point pairs")
     h.legend()
     h.grid(alpha=0.3)
-    rounds = report.get("rounds") or []
-    if rounds:
-        r.plot([q["radius_m"] * 1e3 for q in rounds], [q["rms_m"] * 1e3 for q in rounds], "o-", color="tab:blue")
+    fits = _fits(report.get("rounds") or [])
+    for k, fit in enumerate(fits):  # the joint estimate solves again when its depth factors spread wider
+        prior = fit[0].get("depth_prior")
+        r.plot([q["radius_m"] * 1e3 for q in fit], [q["rms_m"] * 1e3 for q in fit], "o-",
+               color="tab:blue" if k == len(fits) - 1 else "tab:gray",
+               label=None if prior is None else f"depth prior {prior * 100:.2f} %")
+    if fits:
         r.invert_xaxis()
+        if len(fits) > 1:
+            r.legend(fontsize=8)
     r.set_xlabel("correspondence radius of the round (mm)")
     r.set_ylabel("RMS after the round (mm)")
     r.grid(alpha=0.3)

@@ -249,3 +249,12 @@ def test_depth_prior_rises_to_the_spread_the_maps_show(synth_paper, tmp_path):
         assert (levels[name] > jm.KAPPA_SIGMA) == any("solving again" in x for x in lines)
     assert levels["fm"] > 2 * jm.KAPPA_SIGMA, levels
     assert levels["emulator"] < 2 * jm.KAPPA_SIGMA, levels
+
+
+def test_point_map_figure_draws_each_fit_of_the_joint_estimate_as_its_own_line():
+    from calibration._plot import _fits
+
+    rounds = [{"radius_m": r, "rms_m": 1e-3, "depth_prior": p} for p in (1e-3, 3e-3) for r in (0.03, 0.02, 0.008)]
+    fits = _fits(rounds)
+    assert [len(f) for f in fits] == [3, 3] and [f[0]["depth_prior"] for f in fits] == [1e-3, 3e-3]
+    assert len(_fits([{"radius_m": 0.03, "rms_m": 1e-3}, {"radius_m": 0.02, "rms_m": 1e-3}])) == 1  # the refinement's
