@@ -28,6 +28,9 @@ TARGETS_PER_VIEW = 6000  # points per view among which partners are looked for b
 MIN_PAIRS = 500
 F_SCALE = 2.5  # robust knee, in noise sigmas (as the pose-only solve)
 PAIR_SIGMA0 = 3.0  # starting noise of the pair summaries (1 if the distances were independent)
+#: the depth factors spread wider than their prior only when a chi-square test of their rows says so at this
+#: level (a variance factor measured from about 16 views is uncertain by about a third)
+DEPTH_TEST_P = 0.05
 #: a view whose map meets the others' this much less than the median view, placed by the reconstruction's
 #: own poses, contradicts its own pose (see contradicting_views)
 BAD_MATCH_RATIO = 0.25
@@ -255,7 +258,7 @@ def _estimate(views, arms, E, P, start, pose_noise, progress, pivot=None) -> Joi
     if st is None:  # pairs: why not
         return JointFit(start, False, pairs, rounds=rounds)
     level = _depth_level(st, views, pairs, arms, E, P, noise)
-    if level > jm.KAPPA_SIGMA * (1.0 + 1e-6):
+    if level > jm.KAPPA_SIGMA:
         # the factors spread wider than the prior allows: solved again from the start with the prior at the
         # level they show (at most KAPPA_CAP)
         if progress:
@@ -296,10 +299,15 @@ def _fit_rounds(views, arms, E, P, start, noise, samples, targets, active, round
 
 def _depth_level(st, views, pairs, arms, E, P, noise) -> float:
     """The depth factors' prior level the data show at ``st``: the prior's level times the root of its rows'
-    variance factor, between KAPPA_SIGMA and KAPPA_CAP."""
+    variance factor, at most KAPPA_CAP; the prior's own level unless the factors spread significantly wider
+    (their rows' sum of squares above the chi-square quantile ``1 - DEPTH_TEST_P`` of their redundancy)."""
+    from scipy.special import chdtri
+
     r, J = stack(_terms(st, views, pairs, arms, E, P, noise), np.zeros(jm.N_CAL + len(views)))
-    spread = noise["kappa"] * np.sqrt(_prior_variance_factor(J, r, len(views) + 2))
-    return float(np.clip(spread, jm.KAPPA_SIGMA, jm.KAPPA_CAP))
+    ss, dof = _prior_rows(J, r, len(views) + 2)
+    if dof <= 0.0 or ss <= chdtri(dof, DEPTH_TEST_P):
+        return float(noise["kappa"])
+    return float(min(noise["kappa"] * np.sqrt(ss / dof), jm.KAPPA_CAP))
 
 
 def _conclude(start, st, views, pairs, arms, E, P, noise, rounds, active) -> JointFit:
@@ -355,13 +363,18 @@ def _covariance(J: np.ndarray, shifts: np.ndarray, n_prior: int, kappa_var: floa
     return C
 
 
+def _prior_rows(J: np.ndarray, r: np.ndarray, n_prior: int) -> tuple[float, float]:
+    """``(sum r^2, sum (1 - h_jj))`` over the per-view depth-factor rows: J (M, n) and r (M,) whitened, the
+    prior's ``n_prior`` rows last (one per view, then the two arms' means)."""
+    rows = slice(len(r) - n_prior, len(r) - 2)
+    return float(np.sum(r[rows] ** 2)), float(np.sum(redundancy(J)[0][rows]))
+
+
 def _prior_variance_factor(J: np.ndarray, r: np.ndarray, n_prior: int) -> float:
     """The per-view depth-factor rows' a-posteriori variance factor, at least 1: how much wider the fitted
-    factors spread than the prior says (``sum r^2 / sum (1 - h_jj)`` over those rows). J: (M, n) and r: (M,)
-    whitened, the prior's ``n_prior`` rows last (one per view, then the two arms' means)."""
-    rows = slice(len(r) - n_prior, len(r) - 2)
-    red = redundancy(J)[0][rows]
-    return max(1.0, float(np.sum(r[rows] ** 2) / max(float(np.sum(red)), 1e-9)))
+    factors spread than the prior says (``sum r^2 / sum (1 - h_jj)`` over those rows, :func:`_prior_rows`)."""
+    ss, dof = _prior_rows(J, r, n_prior)
+    return max(1.0, ss / max(dof, 1e-9))
 
 
 def _prior_share(C: np.ndarray, Jp: np.ndarray, kappa_var: float) -> np.ndarray:

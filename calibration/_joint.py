@@ -40,9 +40,9 @@ __all__ = ["JointState", "N_CAL", "perturb", "pose_term", "map_term", "depth_pri
 N_CAL = 25  # calibration unknowns in theta before the per-view depth factors
 MAP_SIGMA_FLOOR = 2e-4  # m: no point map agrees better than this
 #: the per-view depth factors' prior: its level where the maps show no wider spread (the floor), and the
-#: most the data may raise it to. The estimate is solved at the floor; when the fitted factors spread wider
-#: (the prior rows' variance factor), it is solved again from the start with the prior at that spread, at
-#: most KAPPA_CAP (estimate._depth_level). Iterated freely (variance components), the factors' spread
+#: most the data may raise it to. The estimate is solved at the floor; when the fitted factors spread
+#: significantly wider (the prior rows' variance factor, a chi-square test), it is solved again from the
+#: start with the prior at that spread, at most KAPPA_CAP (estimate._depth_level). Iterated freely (variance components), the factors' spread
 #: absorbs hand-eye and scale errors (a camera moved along its optical axis looks like a depth factor):
 #: 0.4-0.7 % on rendered scenes whose maps had none, hand-eye translations 3x worse. Measured on rendered
 #: scenes 300-319 (paper pose noise; docs/calibration.md): with 1 % depth-scale errors a fixed prior of

@@ -230,7 +230,7 @@ def test_prior_variance_factor_measures_how_far_the_depth_factors_spread():
 def test_depth_prior_rises_to_the_spread_the_maps_show(synth_paper, tmp_path):
     """Maps whose views each get the depth scale a little wrong (fm-like: 1 % per view) raise the depth
     factors' prior above its floor and the estimate is solved again; the emulator's maps, exact in each
-    camera's frame, leave it near the floor. Both runs say so in their rounds."""
+    camera's frame, leave it at the floor. Both runs say so in their rounds."""
     from bimanual_app.scene import load_scene
     from bimanual_app.synth import make_synthetic_scene
     from calibration import CalibrationOptions, calibrate
@@ -248,7 +248,8 @@ def test_depth_prior_rises_to_the_spread_the_maps_show(synth_paper, tmp_path):
         assert jm.KAPPA_SIGMA <= levels[name] <= jm.KAPPA_CAP
         assert (levels[name] > jm.KAPPA_SIGMA) == any("solving again" in x for x in lines)
     assert levels["fm"] > 2 * jm.KAPPA_SIGMA, levels
-    assert levels["emulator"] < 2 * jm.KAPPA_SIGMA, levels
+    # the emulator's maps: a spread a little over the prior's (about 0.11 %) is not significant, no second solve
+    assert levels["emulator"] == jm.KAPPA_SIGMA, levels
 
 
 def test_point_map_figure_draws_each_fit_of_the_joint_estimate_as_its_own_line():
