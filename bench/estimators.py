@@ -5,8 +5,8 @@ maps, and the joint estimate's uncertainty against its errors.
     nice .venv/bin/python bench/estimators.py [--seeds 1100-1139] [--jobs 2] [--address ADDR] [--no-save]
 
 ``--seeds`` takes a list and ranges (``301,302`` or ``1100-1139``). Which seed ranges have been used to set
-the estimators, and which were run once as held-out, is in docs/calibration.md ("Measured where it was not
-tuned"): pick a range nobody has looked at to check a change. Each scene is made once under
+the estimators, and which were run once as held-out, is in docs/calibration.md ("The depth factors' prior,
+measured"): pick a range nobody has looked at to check a change. Each scene is made once under
 runs/bench_estimators/ (8 views per arm, 5 objects, paper pose noise) and the scenes run as Ray tasks
 (bench/_ray.py). OpenCV Park per arm, told the true scale, is the reference row of issue 21's targets.
 Saves docs/bench/estimators.md.

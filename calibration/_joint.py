@@ -42,10 +42,10 @@ MAP_SIGMA_FLOOR = 2e-4  # m: no point map agrees better than this
 #: the per-view depth factors' prior: its level where the maps show no wider spread (the floor), and the
 #: most the data may raise it to. The estimate is solved at the floor; when the fitted factors spread
 #: significantly wider (the prior rows' variance factor, a chi-square test), it is solved again from the
-#: start with the prior at that spread, at most KAPPA_CAP (estimate._depth_level). Iterated freely (variance components), the factors' spread
-#: absorbs hand-eye and scale errors (a camera moved along its optical axis looks like a depth factor):
-#: 0.4-0.7 % on rendered scenes whose maps had none, hand-eye translations 3x worse. Measured on rendered
-#: scenes 300-319 (paper pose noise; docs/calibration.md): with 1 % depth-scale errors a fixed prior of
+#: start with the prior at that spread, at most KAPPA_CAP (estimate._depth_level). Iterated freely
+#: (variance components), the factors' spread absorbs hand-eye and scale errors (a camera moved along its
+#: optical axis looks like a depth factor): 0.4-0.7 % on rendered scenes whose maps had none, hand-eye
+#: translations 3x worse. Measured on rendered scenes 300-319 (paper pose noise; docs/calibration.md): with 1 % depth-scale errors a fixed prior of
 #: 0.1 / 0.3 / 1 / 3 % gave hand-eyes 6.1 / 3.7 / 3.8 / 4.6 mm; without them 0.1 % gave 2.4 mm, 0.3 % 3.1 mm.
 KAPPA_SIGMA = 1e-3
 KAPPA_CAP = 3e-3
