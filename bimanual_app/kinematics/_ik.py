@@ -1,6 +1,15 @@
-"""Inverse kinematics by damped least squares on a Pinocchio model, with several seeds.
+"""Inverse kinematics: closed-form branches polished by damped least squares, or DLS from several seeds.
 
-One solve runs Levenberg-Marquardt style damped least squares on the SE(3) log error of the target link
+For an arm with a wrist centre (six revolute joints, axes 1-2 and 4-5-6 meeting: the Piper), the seeds after
+the current configuration are the closed-form branches of ``_analytic`` (up to eight; those within the joint
+limits, nearest to the current configuration first, at most ``max_seeds - 1``), each polished by the DLS
+iteration below in one or two steps (the real wrist's axes meet only to a fraction of a millimetre). The
+branches are every solution there is, so a target without one fails without further seeds. The current
+configuration stays first: a move continued step by step keeps its branch through the singularities, where
+the closed form's free angle is ill-conditioned. Other chains, position-only targets and callers with seeds of
+their own use the DLS seeds below.
+
+One DLS solve runs Levenberg-Marquardt style damped least squares on the SE(3) log error of the target link
 (the frame Jacobian in its LOCAL axes and ``log6``, as Pinocchio defines them), a full step (1.0, capped in
 size far from the solution), with joints that sit on a limit and are pushed outwards frozen for the step (an
 active set), and the result clipped to the limits. A seed whose error stops shrinking is abandoned early.
@@ -26,6 +35,7 @@ import numpy as np
 
 from bimanual_app.transforms import check_shape, check_T
 
+from ._analytic import ik_branches, wrist_chain
 from ._dls import ChainKinematics, descend
 
 __all__ = ["IKResult", "IKSolver"]
@@ -94,6 +104,8 @@ class IKSolver:
         self._dposv = lapack.dposv  # a 6x6 SPD solve: 1 us against np.linalg.solve's 4-6 us
         self._eye3, self._eye6 = np.eye(3), np.eye(6)
         self._kin = ChainKinematics(self.model, self.fid)
+        # the closed-form branches (``_analytic``) when the chain has a wrist centre, else None
+        self.chain = wrist_chain(self._kin, self.lower, self.upper)
 
         # nearest-pose seed table, and the arm's reach from the first joint to move the target in space
         self._rot_weight = 0.15  # metres per unit of rotation-matrix difference in the seed metric
@@ -183,8 +195,9 @@ class IKSolver:
         """IK for ``T_target`` (4,4) = pose of ``self.link`` in the robot's base frame.
 
         ``position_only`` uses only ``T_target[:3, 3]``. Stops after ``n_solutions`` distinct solutions or
-        ``max_seeds`` seeds. Solutions lie within the joint limits. ``seeds`` (S, J): the starts tried after
-        ``q_current``, in order, instead of the table's nearest poses and random ones.
+        ``max_seeds`` seeds (closed-form branches, or DLS starts: see the module docstring). Solutions lie
+        within the joint limits. ``seeds`` (S, J): the starts tried after ``q_current``, in order, instead of
+        the closed-form branches or the table's nearest poses and random ones.
         """
         T_target = np.asarray(T_target, dtype=np.float64)
         if T_target.shape != (4, 4) or not np.all(np.isfinite(T_target)):
@@ -215,8 +228,9 @@ class IKSolver:
             seeds = check_shape("seeds", np.asarray(seeds, dtype=np.float64), (None, J))
         dist = np.linalg.norm(T[:, :3, 3] - self._shoulder, axis=1)
         far = dist > self.reach * 1.03 + 0.01
-        seeds_of: list[list[np.ndarray]] = [[qc[i]] for i in range(n)]  # per target, its starts in order
         runs: list[list[tuple]] = [[] for _ in range(n)]  # per target: (q, ep, er, iterations) per seed tried
+        seeds_of: list[list[np.ndarray]] = [[qc[i]] for i in range(n)]  # per target, its starts in order
+        why: list[str] = []  # per target, when not empty: why no further seed was tried
         self._run_lanes([(i, 0) for i in range(n) if not far[i]], seeds_of, runs, T, position_only, n_solutions)
         more = [i for i in range(n) if not far[i] and max_seeds > 1 and self._n_sols(runs[i]) < n_solutions]
         if more and seeds is not None:
@@ -225,6 +239,8 @@ class IKSolver:
                 seeds_of[i] += given
             self._run_lanes([(i, k) for i in more for k in range(1, len(seeds_of[i]))], seeds_of, runs, T,
                             position_only, n_solutions)
+        elif more and self.chain is not None and not position_only:
+            why = self._closed_form_lanes(more, T, qc, seeds_of, runs, n_solutions, max_seeds)
         elif more:
             p = T[more, :3, 3]
             if position_only:
@@ -241,16 +257,49 @@ class IKSolver:
                     seeds_of[i] += list(self.robot.random_q(extra, rng=self._rng))
                 lanes += [(i, k) for k in range(1, min(max_seeds, len(seeds_of[i])))]
             self._run_lanes(lanes, seeds_of, runs, T, position_only, n_solutions)
-        out = []
-        for i in range(n):
+        return self._results(T, qc, far, dist, runs, n_solutions, why)
+
+    def _results(self, T: np.ndarray, qc: np.ndarray, far: np.ndarray, dist: np.ndarray, runs: list,
+                 n_solutions: int, why: list[str]) -> list[IKResult]:
+        """One IKResult per target from its seeds' outcomes ``runs``; ``why[i]``, when not empty, is a failed
+        target's message."""
+        out, J = [], self.robot.nq_arm
+        for i in range(len(T)):
             if far[i]:
                 p = T[i, :3, 3]
                 out.append(IKResult(False, None, np.zeros((0, J)), np.inf, np.inf, 0, 0,
                                     f"target {np.round(p, 3).tolist()} is {dist[i]:.3f} m from the shoulder; "
                                     f"the arm reaches about {self.reach:.3f} m"))
-            else:
-                out.append(self._collect(runs[i], qc[i], n_solutions))
+                continue
+            res = self._collect(runs[i], qc[i], n_solutions)
+            if not res.success and why and why[i]:
+                res.message = why[i]
+            out.append(res)
         return out
+
+    def _closed_form_lanes(self, todo: list[int], T: np.ndarray, qc: np.ndarray, seeds_of: list, runs: list,
+                           n_solutions: int, max_seeds: int) -> list[str]:
+        """Polish the closed-form branches (``_analytic``) of the targets ``todo`` (their seeds after the current
+        configuration): those within the joint limits, nearest to the current configuration first, at most
+        ``max_seeds - 1``, all together by the DLS iteration. Returns, per target, why none was tried ('' where
+        some was): the branches are all the solutions there are (to the wrist's fraction of a millimetre), so
+        such a target fails without more seeds."""
+        why, lanes = [""] * len(T), []
+        if not todo:
+            return why
+        Q, ok, placed = ik_branches(self.chain, T[todo], qc[todo])
+        dq = np.where(ok, np.linalg.norm(Q - qc[todo][:, None], axis=2), np.inf)
+        order = np.argsort(dq, axis=1, kind="stable")
+        for r, i in enumerate(todo):
+            branches = [Q[r, b] for b in order[r, :max_seeds - 1] if ok[r, b]]
+            lanes += [(i, len(seeds_of[i]) + k) for k in range(len(branches))]
+            seeds_of[i] = seeds_of[i] + branches
+            if not branches:
+                why[i] = ("no IK solution within the joint limits (the current configuration does not converge, "
+                          "every closed-form branch leaves them)"
+                          if placed[r] else "no IK solution: the target's wrist centre is beyond the arm's reach")
+        self._run_lanes(lanes, seeds_of, runs, T, False, n_solutions)
+        return why
 
     def _n_sols(self, runs: list[tuple]) -> int:
         """Distinct solutions among a target's seed outcomes."""
