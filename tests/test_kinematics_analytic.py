@@ -81,8 +81,9 @@ def test_branches_reproduce_random_configurations(piper, solver):
     singularity within 0.01 rad of the configuration itself."""
     q = piper.random_q(3000, rng=3)
     T = piper.fk_link(q, piper.tcp_link)
-    Q, ok, placed = ik_branches(solver.chain, T, q)
-    assert placed.all() and ok.any(axis=1).all()
+    Q, excess = ik_branches(solver.chain, T, q)
+    ok = excess == 0
+    assert np.isfinite(excess).all() and ok.any(axis=1).all()
     Tb = piper.fk_link(Q.reshape(-1, 6), piper.tcp_link).reshape(len(T), 8, 4, 4)
     pos_err = np.where(ok, np.linalg.norm(Tb[..., :3, 3] - T[:, None, :3, 3], axis=-1), np.inf).min(axis=1)
     assert np.percentile(pos_err, 99) < 2e-4 and pos_err.max() < 2e-3
@@ -120,6 +121,18 @@ def test_solutions_come_nearest_the_current_configuration_first(piper, solver):
         assert np.all(np.diff(d) >= 0)
 
 
+def test_a_pose_near_the_shoulder_singularity_whose_branches_all_leave_the_limits_is_solved(piper, solver):
+    """The wrist centre about a millimetre from axis 1: the closed form's joint 1 is 0.07 rad off, which the
+    wrist's joints follow beyond their limits; the branch nearest the limits, clipped, polishes to it."""
+    q = np.array([-2.5407, 0.4346, -0.5693, -0.5858, 0.1443, -1.8619])
+    T = piper.fk_link(q, piper.tcp_link)
+    _, excess = ik_branches(solver.chain, T[None], piper.neutral()[None])
+    assert (excess > 0).all()
+    r = solver.solve(T, q_current=piper.neutral(), max_seeds=8)
+    assert r.success and piper.within_limits(r.q) and r.seeds == 2  # the current configuration did not converge
+    assert np.linalg.norm(piper.fk_link(r.q, piper.tcp_link)[:3, 3] - T[:3, 3]) < 1e-4
+
+
 @pytest.mark.parametrize("where", ["wrist", "shoulder"])
 def test_singular_poses_are_solved(piper, solver, where):
     """Joint 5 at zero (axes 4 and 6 aligned: only their sum sets the pose) and the wrist centre on axis 1
@@ -146,15 +159,17 @@ def test_singular_poses_are_solved(piper, solver, where):
     assert R.magnitude() < 1e-3
 
 
-def test_a_target_without_a_branch_fails_after_the_current_configuration_with_the_reason(piper, solver):
+def test_a_target_outside_the_limits_costs_one_clipped_branch_and_beyond_reach_none(piper, solver):
     from bimanual_app.kinematics import IKSolver
 
     seeds = IKSolver(piper)
     seeds.chain = None
     for q5 in (1.4, 2.0):  # the wrist bent past joint 5's limit (1.22 rad): every branch leaves the limits
         T = piper.fk_link(np.array([0.0, 1.0, -1.2, 0.0, q5, 0.0]), piper.tcp_link)
+        _, excess = ik_branches(solver.chain, T[None], piper.neutral()[None])
+        assert (excess > 0).all() and np.isfinite(excess).any()
         r = solver.solve(T, max_seeds=8)
-        assert not r.success and r.seeds == 1 and "every closed-form branch leaves" in r.message  # no seed after
+        assert not r.success and r.seeds == 2  # the current configuration, then the branch nearest the limits
         assert not seeds.solve(T, max_seeds=16).success  # the DLS seeds find nothing either
     far = np.eye(4)
     far[:3, 3] = [0.0, 0.0, 0.123 + 0.55]  # within the table's reach, but the wrist centre cannot get there

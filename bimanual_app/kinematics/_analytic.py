@@ -172,13 +172,14 @@ def sp3(w, r, p, q, delta):
 
 
 def _into_limits(theta: np.ndarray, lower: np.ndarray, upper: np.ndarray, slack) -> tuple[np.ndarray, np.ndarray]:
-    """(angles within [lower, upper] (N, J), ok (N, J)): theta (N, J) turned by whole turns into the limits
-    (J,), clipped where they miss them by at most ``slack`` (rad, (N, J)); ok is False where they miss by more."""
+    """(angles within [lower, upper] (N, J), excess (N, J)): theta (N, J) turned by whole turns into the
+    limits (J,) and clipped to them; excess: by how much (rad) they missed the limits beyond ``slack`` (rad,
+    (N, J)), 0 where by at most that."""
     a = theta + 2 * np.pi * np.ceil((lower - theta) / (2 * np.pi))  # the smallest turn of theta >= lower
     below = a - 2 * np.pi  # the largest one < lower
     over, under = np.maximum(a - upper, 0.0), lower - below
     pick = np.where(over <= under, a, below)
-    return np.clip(pick, lower, upper), np.minimum(over, under) <= slack
+    return np.clip(pick, lower, upper), np.maximum(np.minimum(over, under) - slack, 0.0)
 
 
 WRIST_ALIGNED = 0.1  # rad: joint 5 this near where axes 4 and 6 align leaves joints 4 and 6 a shared turn
@@ -216,11 +217,12 @@ def _split_wrist(chain: WristChain, Q: np.ndarray, hint: np.ndarray) -> np.ndarr
     return out
 
 
-def ik_branches(chain: WristChain, T_targets: np.ndarray, hint: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def ik_branches(chain: WristChain, T_targets: np.ndarray, hint: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Closed-form configurations for the targets ``T_targets`` (N, 4, 4) of the chain's frame.
 
-    Returns (Q (N, 8, 6), ok (N, 8): the branch exists and lies within the joint limits (to ``LIMIT_SLACK``),
-    placed (N,): some branch puts the wrist centre where the target needs it, limits aside). Where a joint's
+    Returns (Q (N, 8, 6) clipped to the joint limits, excess (N, 8): by how much (rad, summed over the
+    joints) each branch left the limits beyond ``LIMIT_SLACK``: 0 for a branch within them, ``inf`` where the
+    branch does not exist (the wrist centre out of its reach)). Where a joint's
     angle is free (a singular pose: the wrist centre on axis 1, or axes 4 and 6 aligned) it takes ``hint``'s
     (N, 6), the caller's current configuration. Each step runs on every branch at once (rows: target-major,
     then elbow, shoulder, wrist), so a call costs about the same for one target as for a hundred.
@@ -262,6 +264,5 @@ def ik_branches(chain: WristChain, T_targets: np.ndarray, hint: np.ndarray) -> t
     rho = np.linalg.norm(_cross(c_t - chain.shoulder, w[0]), axis=1)
     slack = np.full((8 * n, 6), LIMIT_SLACK)
     slack[:, 0] += np.repeat(3 * chain.wrist_gap / np.maximum(rho, 1e-9), 8)
-    Q, inside = _into_limits(Q, chain.lower, chain.upper, slack)
-    placed = (ok3[:, None] & ok12.reshape(n, 2)).any(axis=1)
-    return Q.reshape(n, 8, 6), (ok & inside.all(axis=1)).reshape(n, 8), placed
+    Q, excess = _into_limits(Q, chain.lower, chain.upper, slack)
+    return Q.reshape(n, 8, 6), np.where(ok, excess.sum(axis=1), np.inf).reshape(n, 8)
