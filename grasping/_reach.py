@@ -287,7 +287,7 @@ class ArmReach:
     def _first_ik(self, T: np.ndarray) -> list:
         """``solver.solve_many`` of poses ``T`` (K, 4, 4) from the current configuration, remembering each pose's
         result: a push contact is checked once per way in, and its IK does not depend on the way in (the
-        seeds are deterministic: the closed-form branches, or the current configuration and the nearest
+        seeds are deterministic: the current configuration, then the closed-form branches or the nearest
         poses of the solver's table)."""
         if self.max_seeds > 1 + self.solver.n_near:  # random seeds would make a repeat differ
             return self.solver.solve_many(T, self.q_current, max_seeds=self.max_seeds)

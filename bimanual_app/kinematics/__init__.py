@@ -5,8 +5,8 @@ Public API:
              position_only=False, n_solutions=1) -> IKResult
     IKSolver.solve_many(T_targets (N,4,4), q_current=None | (J,) | (N,J), ...) -> [IKResult] * N
              (the same results as N ``solve`` calls; all targets' seeds descend together, vectorised)
-    For an arm with a wrist centre (the Piper) the seeds are the closed-form branches (``_analytic``:
-    ``wrist_chain``, ``ik_branches``), polished by the same damped least squares.
+    For an arm with a wrist centre (the Piper) the seeds after the current configuration are the closed-form
+    branches (``_analytic``: ``wrist_chain``, ``ik_branches``), polished by the same damped least squares.
     solve_ik(robot, T_target, q_current=None, **kw) -> IKResult   (caches one IKSolver per robot and link)
 
 Two arms holding one object (``_lift``, used by the grasp stage and the joint-grasp planner):

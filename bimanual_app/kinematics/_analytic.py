@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bimanual_app.transforms import skew
+
 from ._dls import _cross
 
 __all__ = ["WristChain", "wrist_chain", "ik_branches"]
@@ -34,15 +36,14 @@ LIMIT_SLACK = 0.02  # rad: a branch this far outside a joint limit is still poli
 class WristChain:
     """A six-joint revolute chain's screw axes at q = 0, in the base frame.
 
-    w: (6, 3) unit joint axes; r: (6, 3) a point on each axis; T_home, T_home_inv: (4, 4) the target frame
-    at q = 0 and its inverse;
+    w: (6, 3) unit joint axes; r: (6, 3) a point on each axis; T_home_inv: (4, 4) the inverse of the target
+    frame's pose at q = 0;
     shoulder: (3,) where axes 1 and 2 meet; wrist: (3,) where axes 4 and 5 meet (axis 6 passes within
     ``wrist_gap`` metres); lower, upper: (6,) joint limits (rad).
     """
 
     w: np.ndarray
     r: np.ndarray
-    T_home: np.ndarray
     T_home_inv: np.ndarray
     shoulder: np.ndarray
     wrist: np.ndarray
@@ -90,28 +91,23 @@ def wrist_chain(kin, lower: np.ndarray, upper: np.ndarray, tol: float = 1e-3) ->
     if gap > tol or min(_line_distance(wrist, r[2], w[2]), _line_distance(shoulder, r[2], w[2])) < 1e-3:
         return None
     T_home = kin(np.zeros((1, kin.nv)))[0][0]
-    return WristChain(w, r, T_home, np.linalg.inv(T_home), shoulder, wrist, gap,
+    return WristChain(w, r, np.linalg.inv(T_home), shoulder, wrist, gap,
                       np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64))
 
 
 # ---------------------------------------------------------------- batched Paden-Kahan subproblems
 
 
-def _skew(w: np.ndarray) -> np.ndarray:
-    """(3, 3) the matrix K with K x = w x x for w (3,)."""
-    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-
-
 def _rotate(w: np.ndarray, r: np.ndarray, theta: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Points (N, 3): p (N, 3) rotated by theta (N,) about the axis through r (3,) along the unit w (3,)."""
     u = p - r
     c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
-    return r + u * c + (u @ _skew(w).T) * s + w * (u @ w)[:, None] * (1 - c)
+    return r + u * c + (u @ skew(w).T) * s + w * (u @ w)[:, None] * (1 - c)
 
 
 def _rotation(w: np.ndarray, theta: np.ndarray) -> np.ndarray:
     """Rotation matrices (N, 3, 3) about the unit axis w (3,) by theta (N,) (Rodrigues)."""
-    K = _skew(w)
+    K = skew(w)
     s, c = np.sin(theta)[:, None, None], (1 - np.cos(theta))[:, None, None]
     return np.eye(3) + s * K + c * (K @ K)
 
@@ -124,7 +120,7 @@ def sp1(w: np.ndarray, r: np.ndarray, p: np.ndarray, q: np.ndarray, fallback: np
     u = u - (u @ w)[:, None] * w
     v = v - (v @ w)[:, None] * w
     # (u x v) . w = u . (v x w) = -u . (K_w v)
-    theta = np.arctan2(-(u * (v @ _skew(w).T)).sum(axis=1), (u * v).sum(axis=1))
+    theta = np.arctan2(-(u * (v @ skew(w).T)).sum(axis=1), (u * v).sum(axis=1))
     degenerate = np.minimum((u * u).sum(axis=1), (v * v).sum(axis=1)) < eps ** 2
     return np.where(degenerate, fallback, theta)
 
@@ -159,7 +155,7 @@ def sp3(w, r, p, q, delta):
     up = u - (u @ w)[:, None] * w
     vp = v - (v @ w)[:, None] * w
     d2 = delta ** 2 - ((p - q) @ w) ** 2
-    theta0 = np.arctan2(-(up * (vp @ _skew(w).T)).sum(axis=1), (up * vp).sum(axis=1))
+    theta0 = np.arctan2(-(up * (vp @ skew(w).T)).sum(axis=1), (up * vp).sum(axis=1))
     nu, nv = np.sqrt((up * up).sum(axis=1)), np.sqrt((vp * vp).sum(axis=1))
     cos_phi = (nu ** 2 + nv ** 2 - d2) / np.maximum(2 * nu * nv, 1e-12)
     slack = 1e-3 * (nu + nv) / np.maximum(nu * nv, 1e-12)  # a 1 mm shortfall of the distance, in cosine terms
@@ -185,14 +181,6 @@ def _into_limits(theta: np.ndarray, lower: np.ndarray, upper: np.ndarray, slack)
 WRIST_ALIGNED = 0.1  # rad: joint 5 this near where axes 4 and 6 align leaves joints 4 and 6 a shared turn
 
 
-def _near_wrist_singularity(chain: WristChain, Q: np.ndarray) -> np.ndarray:
-    """(...) bool: configurations Q (..., 6) whose joint 5 lies within ``WRIST_ALIGNED`` of where axes 4 and 6
-    align (q5 = 0 for a chain whose axes 4 and 6 are parallel at q = 0; never for another chain)."""
-    if abs(abs(float(chain.w[3] @ chain.w[5])) - 1) > 1e-6:
-        return np.zeros(Q.shape[:-1], dtype=bool)
-    return np.abs(Q[..., 4]) < WRIST_ALIGNED
-
-
 def _split_wrist(chain: WristChain, Q: np.ndarray, hint: np.ndarray) -> np.ndarray:
     """Q (N, 6) with joints 4 and 6 re-split where axes 4 and 6 (parallel at q = 0) nearly align and the
     closed form's split leaves their limits.
@@ -201,11 +189,12 @@ def _split_wrist(chain: WristChain, Q: np.ndarray, hint: np.ndarray) -> np.ndarr
     the sign of w4 . w6) moves it by about |q5| d. The closed form's split is then ill-conditioned (a
     tenth of a millimetre off the wrist centre turns it by a radian), and where it leaves the limits, the split
     nearest ``hint``'s (N, 6) joint 4 that keeps both joints within them is a start for the polish."""
+    sign = float(chain.w[3] @ chain.w[5])
     outside = (Q[:, [3, 5]] < chain.lower[[3, 5]] - LIMIT_SLACK) | (Q[:, [3, 5]] > chain.upper[[3, 5]] + LIMIT_SLACK)
-    near = _near_wrist_singularity(chain, Q) & outside.any(axis=1)
-    if not near.any():
+    near = (np.abs(Q[:, 4]) < WRIST_ALIGNED) & outside.any(axis=1)  # axes 4 and 6 align at q5 = 0
+    if abs(abs(sign) - 1) > 1e-6 or not near.any():
         return Q
-    sign = np.sign(float(chain.w[3] @ chain.w[5]))
+    sign = np.sign(sign)
     lo4, hi4, lo6, hi6 = chain.lower[3], chain.upper[3], chain.lower[5], chain.upper[5]
     q4, q6 = Q[near, 3], Q[near, 5]
     # d keeps q4 + d within joint 4's limits and q6 - sign d within joint 6's

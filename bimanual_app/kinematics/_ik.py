@@ -229,8 +229,8 @@ class IKSolver:
             seeds = check_shape("seeds", np.asarray(seeds, dtype=np.float64), (None, J))
         dist = np.linalg.norm(T[:, :3, 3] - self._shoulder, axis=1)
         far = dist > self.reach * 1.03 + 0.01
-        runs: list[list[tuple]] = [[] for _ in range(n)]  # per target: (q, ep, er, iterations) per seed tried
         seeds_of: list[list[np.ndarray]] = [[qc[i]] for i in range(n)]  # per target, its starts in order
+        runs: list[list[tuple]] = [[] for _ in range(n)]  # per target: (q, ep, er, iterations) per seed tried
         why: list[str] = []  # per target, when not empty: why no further seed was tried
         self._run_lanes([(i, 0) for i in range(n) if not far[i]], seeds_of, runs, T, position_only, n_solutions)
         more = [i for i in range(n) if not far[i] and max_seeds > 1 and self._n_sols(runs[i]) < n_solutions]
