@@ -44,9 +44,9 @@ MAP_SIGMA_FLOOR = 2e-4  # m: no point map agrees better than this
 #: significantly wider (the prior rows' variance factor, a chi-square test), it is solved again from the
 #: start with the prior at that spread, at most KAPPA_CAP (estimate._depth_level). Iterated freely
 #: (variance components), the factors' spread absorbs hand-eye and scale errors (a camera moved along its
-#: optical axis looks like a depth factor): 0.4-0.7 % on rendered scenes whose maps had none, hand-eye
-#: translations 3x worse. Measured on rendered scenes 300-319 (paper pose noise; docs/calibration.md): with 1 % depth-scale errors a fixed prior of
-#: 0.1 / 0.3 / 1 / 3 % gave hand-eyes 6.1 / 3.7 / 3.8 / 4.6 mm; without them 0.1 % gave 2.4 mm, 0.3 % 3.1 mm.
+#: optical axis looks like a depth factor), hand-eye translations several times worse. No fixed level
+#: serves maps with and without per-view depth-scale errors: the measurements are in docs/calibration.md
+#: ("The depth factors' prior, measured (issue 21)").
 KAPPA_SIGMA = 1e-3
 KAPPA_CAP = 3e-3
 MEAN_KAPPA_SIGMA = 1e-4  # each arm's mean depth factor: held at zero (see depth_prior_term)
