@@ -210,8 +210,9 @@ def ik_branches(chain: WristChain, T_targets: np.ndarray, hint: np.ndarray) -> t
     """Closed-form configurations for the targets ``T_targets`` (N, 4, 4) of the chain's frame.
 
     Returns (Q (N, 8, 6) clipped to the joint limits, excess (N, 8): by how much (rad, summed over the
-    joints) each branch left the limits beyond ``LIMIT_SLACK``: 0 for a branch within them, ``inf`` where the
-    branch does not exist (the wrist centre out of its reach)). Where a joint's
+    joints) each branch left the limits beyond its slack: 0 for a branch within them, ``inf`` where the
+    branch does not exist (the wrist centre out of its reach)). The slack is ``LIMIT_SLACK``, and near the
+    shoulder singularity also the closed form's error there (joints 1 and 4-6). Where a joint's
     angle is free (a singular pose: the wrist centre on axis 1, or axes 4 and 6 aligned) it takes ``hint``'s
     (N, 6), the caller's current configuration. Each step runs on every branch at once (rows: target-major,
     then elbow, shoulder, wrist), so a call costs about the same for one target as for a hundred.
@@ -249,9 +250,10 @@ def ik_branches(chain: WristChain, T_targets: np.ndarray, hint: np.ndarray) -> t
     Q = _split_wrist(chain, Q, hint[w8])
     ok = np.repeat(ok3, 8) & np.repeat(ok12, 4) & np.repeat(ok45, 2)
     # joint 1's angle is read off the wrist centre's direction from axis 1: the wrist's approximation
-    # (``wrist_gap``) turns it by up to gap / distance, a large angle when the wrist centre nears the axis
+    # (``wrist_gap``) turns it by up to gap / distance, a large angle when the wrist centre nears the axis,
+    # and the wrist's joints, which turn the hand back to the target's orientation, follow it by as much
     rho = np.linalg.norm(_cross(c_t - chain.shoulder, w[0]), axis=1)
     slack = np.full((8 * n, 6), LIMIT_SLACK)
-    slack[:, 0] += np.repeat(3 * chain.wrist_gap / np.maximum(rho, 1e-9), 8)
+    slack[:, [0, 3, 4, 5]] += np.repeat(3 * chain.wrist_gap / np.maximum(rho, 1e-9), 8)[:, None]
     Q, excess = _into_limits(Q, chain.lower, chain.upper, slack)
     return Q.reshape(n, 8, 6), np.where(ok, excess.sum(axis=1), np.inf).reshape(n, 8)

@@ -4,8 +4,9 @@ For an arm with a wrist centre (six revolute joints, axes 1-2 and 4-5-6 meeting:
 the current configuration are the closed-form branches of ``_analytic`` (up to eight; those within the joint
 limits, nearest to the current configuration first, at most ``max_seeds - 1``), each polished by the DLS
 iteration below in one or two steps (the real wrist's axes meet only to a fraction of a millimetre). The
-branches are every solution there is, so where all leave the limits only the one nearest them is polished,
-and a target whose wrist centre is out of reach fails without further seeds. The current
+branches are every solution there is (up to the closed form's error, which ``_analytic`` allows for at the
+limits), so a target whose branches all leave the limits, or whose wrist centre is out of reach, fails
+without further seeds. The current
 configuration stays first: a move continued step by step keeps its branch through the singularities, where
 the closed form's free angle is ill-conditioned. Other chains, position-only targets and callers with seeds of
 their own use the DLS seeds below.
@@ -282,9 +283,8 @@ class IKSolver:
                            n_solutions: int, max_seeds: int) -> list[str]:
         """Polish the closed-form branches (``_analytic``) of the targets ``todo`` (their seeds after the current
         configuration): those within the joint limits, nearest to the current configuration first, at most
-        ``max_seeds - 1`` (where all leave the limits, the one nearest them, clipped), all together by the DLS
-        iteration. Returns, per target, why none was tried ('' where some was: the wrist centre out of reach):
-        the branches are all the solutions there are, so such a target fails without more seeds."""
+        ``max_seeds - 1``, all together by the DLS iteration. Returns, per target, why none was tried ('' where
+        some was): the branches are all the solutions there are, so such a target fails without more seeds."""
         why, lanes = [""] * len(T), []
         if not todo:
             return why
@@ -294,14 +294,13 @@ class IKSolver:
                            kind="stable")
         for r, i in enumerate(todo):
             branches = [Q[r, b] for b in order[r, :max_seeds - 1] if ok[r, b]]
-            if not branches and np.isfinite(excess[r]).any():
-                # every branch leaves the limits, though maybe only by the closed form's error: where the wrist
-                # centre nears axis 1 (or the wrist its singularity) an angle off by a tenth of a radian moves
-                # the pose by a fraction of a millimetre. The branch nearest to the limits, clipped, is polished
-                branches = [Q[r, int(np.argmin(excess[r]))]]
             lanes += [(i, len(seeds_of[i]) + k) for k in range(len(branches))]
             seeds_of[i] = seeds_of[i] + branches
-            if not branches:
+            if branches:
+                continue
+            if np.isfinite(excess[r]).any():
+                why[i] = "no IK solution within the joint limits: every closed-form branch leaves them"
+            else:
                 why[i] = "no IK solution: the target's wrist centre is beyond the arm's reach"
         self._run_lanes(lanes, seeds_of, runs, T, False, n_solutions)
         return why
