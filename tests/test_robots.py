@@ -104,6 +104,20 @@ def test_batch_fk_matches_pinocchio_for_every_frame(piper):
             np.testing.assert_allclose(batch[k, i], data.oMf[i].homogeneous, atol=1e-12)
 
 
+def test_batch_fk_of_one_frame_across_chunks_matches_pinocchio(piper, monkeypatch):
+    """``frames`` evaluates only the joints above the asked frame, a chunk of configurations at a time."""
+    import pinocchio as pin
+
+    monkeypatch.setattr(piper._batch, "CHUNK", 3)
+    data = piper.model.createData()
+    Q = piper.random_q(8, rng=5)
+    T = piper.fk_link(Q, piper.tcp_link)
+    fid = piper.frame_id(piper.tcp_link)
+    for k, q in enumerate(Q):
+        pin.framesForwardKinematics(piper.model, data, piper.full_q(q))
+        np.testing.assert_allclose(T[k], data.oMf[fid].homogeneous, atol=1e-12)
+
+
 def _pybullet_link_poses(urdf: str, q_full: np.ndarray, link_names: list[str]) -> dict[str, np.ndarray]:
     import pybullet as p
 

@@ -72,18 +72,32 @@ class BatchFK:
         T[:, :3, :3] = np.eye(3) + s[:, None, None] * K + (1.0 - c)[:, None, None] * (K @ K)
         return T
 
-    def joints(self, Q: np.ndarray) -> np.ndarray:
-        """Placements of all joints ``(N, njoints, 4, 4)`` for configurations ``Q`` (N, nq)."""
+    def joints(self, Q: np.ndarray, only: set[int] | None = None) -> np.ndarray:
+        """Placements of all joints ``(N, njoints, 4, 4)`` for configurations ``Q`` (N, nq); with ``only`` (joint
+        indices closed under parents), only those are computed (the others are left unset)."""
         Q = np.asarray(Q, dtype=np.float64)
         n = Q.shape[0]
         out = np.empty((n, self.njoints, 4, 4))
         out[:, 0] = np.eye(4)
         for i in range(1, self.njoints):
-            out[:, i] = out[:, self.parents[i]] @ self.M[i] @ self._motion(i, Q[:, self.idx_q[i]])
+            if only is None or i in only:
+                out[:, i] = out[:, self.parents[i]] @ self.M[i] @ self._motion(i, Q[:, self.idx_q[i]])
         return out
 
+    CHUNK = 4096  # configurations per pass in ``frames``: the working arrays stay in cache, not in fresh pages
+
     def frames(self, Q: np.ndarray, frame_ids) -> np.ndarray:
-        """Placements ``(N, len(frame_ids), 4, 4)`` of the given frames."""
-        J = self.joints(Q)
+        """Placements ``(N, len(frame_ids), 4, 4)`` of the given frames (only the joints that move them are
+        evaluated, a chunk of configurations at a time)."""
+        Q = np.asarray(Q, dtype=np.float64)
         ids = np.asarray(frame_ids, dtype=int)
-        return J[:, self.frame_parent[ids]] @ self.frame_M[ids]
+        need: set[int] = set()
+        for j in self.frame_parent[ids]:
+            while j > 0 and j not in need:
+                need.add(int(j))
+                j = self.parents[j]
+        out = np.empty((len(Q), len(ids), 4, 4))
+        for a in range(0, len(Q), self.CHUNK):
+            J = self.joints(Q[a:a + self.CHUNK], need)
+            out[a:a + self.CHUNK] = J[:, self.frame_parent[ids]] @ self.frame_M[ids]
+        return out
