@@ -251,25 +251,57 @@ def _seed_pairs(P: np.ndarray, N: np.ndarray, rng: np.random.Generator, params: 
     return pairs_i, pairs_j, axes, pos
 
 
-def _closing_region(L: np.ndarray, in_x: np.ndarray, todo: np.ndarray, R: np.ndarray, C: np.ndarray, dlt: float,
-                    gripper: GripperModel, params: SamplerParams,
+def _window_points(P: np.ndarray, R: np.ndarray, C: np.ndarray, gripper: GripperModel, params: SamplerParams,
+                   chunk: int = 128) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The object points (M, 3) that may fall in a candidate's closing region at one of ``params.depths``, for
+    the candidate frames R (n, 3, 3) at contact centres C (n, 3): ``(candidate (K,), y (K,), z (K,))`` with y,
+    z the point in the candidate's frame centred on the contact centre (float32), candidates in order.
+
+    Within the fingers' x span and the stroke, and within the z span of every depth's region; a third of the
+    pairs or fewer, computed a chunk of candidates at a time (the dense (n, M, 3) array was 70 MB)."""
+    fx, fz = gripper.finger_x, gripper.finger_z
+    dl = [f * gripper.finger_length for f in params.depths]
+    z_lo, z_hi = fz[0] + min(dl) - 1e-4, fz[1] + max(dl) + 1e-4  # padded: each depth's own test follows
+    P32 = P.astype(np.float32)[None]
+    rows, ys, zs = [], [], []
+    for a in range(0, len(R), chunk):
+        R32 = R[a:a + chunk].astype(np.float32)
+        L = np.matmul(P32, R32) - np.matmul(C[a:a + chunk].astype(np.float32)[:, None, :], R32)
+        keep = ((L[..., 0] >= fx[0]) & (L[..., 0] <= fx[1]) & (np.abs(L[..., 1]) <= gripper.max_width / 2)
+                & (L[..., 2] >= z_lo) & (L[..., 2] <= z_hi))
+        r, m = np.nonzero(keep)
+        rows.append(r + a)
+        ys.append(L[r, m, 1])
+        zs.append(L[r, m, 2])
+    return np.concatenate(rows), np.concatenate(ys), np.concatenate(zs)
+
+
+def _closing_region(window: tuple[np.ndarray, np.ndarray, np.ndarray], todo: np.ndarray, R: np.ndarray,
+                    C: np.ndarray, dlt: float, gripper: GripperModel, params: SamplerParams,
                     max_cw: float) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
-    """The candidates among ``todo`` whose closing region, pushed in by ``dlt``, holds enough of the object
-    within the stroke: ``(indices (k,), T_b1_g (k, 4, 4) centred on it, opening (k,), contact width (k,))``."""
+    """The candidates among ``todo`` (n,) bool whose closing region, pushed in by ``dlt``, holds enough of the
+    object within the stroke (``window``: ``_window_points``): ``(indices (k,), T_b1_g (k, 4, 4) centred on it,
+    opening (k,), contact width (k,))``."""
     fz = gripper.finger_z
-    # closing region at this depth: z_g = z_local - dlt in [finger_z[0], finger_z[1]]
-    zl = L[todo, :, 2] - dlt
-    reg = in_x[todo] & (zl >= fz[0]) & (zl <= fz[1])
-    cnt = reg.sum(axis=1)
-    yl = L[todo, :, 1]
-    ymin = np.where(reg, yl, np.inf).min(axis=1)
-    ymax = np.where(reg, yl, -np.inf).max(axis=1)
-    cw = ymax - ymin
-    ok = (cnt >= params.min_points) & (cw >= params.min_width) & (cw <= max_cw)
-    idx = np.nonzero(todo)[0][ok]
+    rows, y, z = window
+    sel = todo[rows]
+    rows, y, zl = rows[sel], y[sel], z[sel] - dlt  # closing region at this depth: z_g = z - dlt in finger_z
+    reg = (zl >= fz[0]) & (zl <= fz[1])
+    rows, y = rows[reg], y[reg]
+    n = len(todo)
+    cnt = np.bincount(rows, minlength=n)
+    ymin, ymax = np.full(n, np.inf, dtype=np.float32), np.full(n, -np.inf, dtype=np.float32)
+    if len(rows):  # per candidate (rows sorted): the extent of its points across the closing axis
+        starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]])
+        ymin[rows[starts]] = np.minimum.reduceat(y, starts)
+        ymax[rows[starts]] = np.maximum.reduceat(y, starts)
+    idx = np.nonzero(todo & (cnt >= params.min_points))[0]
+    cw = ymax[idx] - ymin[idx]
+    ok = (cw >= params.min_width) & (cw <= max_cw)
+    idx = idx[ok]
     if len(idx) == 0:
         return idx, None, None, None
-    shift = (0.5 * (ymin + ymax))[ok]
+    shift = 0.5 * (ymin[idx] + ymax[idx])
     w = np.minimum(cw[ok] + 2 * params.clearance, gripper.max_width)
     Rk = R[idx]
     o = C[idx] + Rk[:, :, 1] * shift[:, None] + Rk[:, :, 2] * dlt
@@ -287,11 +319,7 @@ def _push_in(P: np.ndarray, R: np.ndarray, C: np.ndarray, gripper: GripperModel,
     any closing region held (n,) bool)``.
     """
     n = len(R)
-    # object points in each candidate's frame centred on the contact centre: (n, M, 3)
-    R32 = R.astype(np.float32)
-    L = np.matmul(P.astype(np.float32)[None], R32) - np.matmul(C.astype(np.float32)[:, None, :], R32)
-    fx = gripper.finger_x
-    in_x = (L[..., 0] >= fx[0]) & (L[..., 0] <= fx[1]) & (np.abs(L[..., 1]) <= gripper.max_width / 2)
+    window = _window_points(P, R, C, gripper, params)
     chosen = np.full(n, -1)
     T_best = np.zeros((n, 4, 4))
     width = np.zeros(n)
@@ -303,7 +331,7 @@ def _push_in(P: np.ndarray, R: np.ndarray, C: np.ndarray, gripper: GripperModel,
         if not todo.any():
             break
         dlt = frac * gripper.finger_length
-        idx, T, w, cw = _closing_region(L, in_x, todo, R, C, dlt, gripper, params, max_cw)
+        idx, T, w, cw = _closing_region(window, todo, R, C, dlt, gripper, params, max_cw)
         region_any[idx] = True
         if len(idx) == 0:
             continue
