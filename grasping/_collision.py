@@ -38,12 +38,14 @@ class SceneOctree:
     MAX_CELLS = 2_000_000
 
     def maybe_near(self, centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
-        """(M,) bool: some point may lie within ``radii`` (M,) of ``centres`` (M, 3); False only where none does.
+        """(M,) bool: some point may lie within the boxes of half-sizes ``radii`` (M,) (cubes) or (M, 3) (per
+        axis) around ``centres`` (M, 3); False only where none does.
 
-        A dense grid of occupied cells with 3D prefix sums counts the occupied cells a query's bounding cube
-        touches in constant time (vectorised over the queries): a cheap broad phase before coal's octree."""
+        A dense grid of occupied cells with 3D prefix sums counts the occupied cells a query box touches in
+        constant time (vectorised over the queries): a cheap broad phase before coal's octree."""
         c = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
-        r = np.asarray(radii, dtype=np.float64).reshape(-1, 1)
+        r = np.asarray(radii, dtype=np.float64)
+        r = r.reshape(-1, 3) if r.ndim == 2 else r.reshape(-1, 1)
         if not len(self.points):
             return np.zeros(len(c), dtype=bool)
         if self._counts is None:
@@ -145,10 +147,10 @@ class GripperCollider:
         T = self._placements(T_b_g[idx], np.broadcast_to(np.asarray(width, dtype=np.float64), (n,))[idx], swept)
         geoms = [g for g, _ in self.swept] if swept else [s.geometry for s in self.gripper.shapes]
         # broad phase: a shape can touch an occupied octree cell within the margin only when some point lies
-        # within its bounding sphere's radius + margin + the cell's diagonal (the point is inside the cell)
-        centres, radii = _bounding_spheres(self, T, swept)
-        reach = radii + float(margin) + np.sqrt(3.0) * scene.resolution + 1e-9
-        near = scene.maybe_near(centres.reshape(-1, 3), np.tile(reach, len(idx))).reshape(len(idx), -1)
+        # within its world-axis box grown by the margin and a cell (the point is inside that cell)
+        centres, halves = _world_boxes(self, T, swept)
+        reach = halves + (float(margin) + scene.resolution + 1e-9)
+        near = scene.maybe_near(centres.reshape(-1, 3), reach.reshape(-1, 3)).reshape(len(idx), -1)
         req, res = coal.CollisionRequest(), coal.CollisionResult()
         req.security_margin = float(margin)
         ident = coal.Transform3s()
@@ -177,6 +179,16 @@ class GripperCollider:
             if not alive.any():
                 break
         return out
+
+
+def _world_boxes(collider: GripperCollider, T: np.ndarray, swept: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Centres (N, S, 3) and half-sizes (N, S, 3) of the world-axis boxes around each shape's box (swept or
+    not) placed at ``T`` (N, S, 4, 4): a thin finger tilted 45 degrees spans half the cube of its sphere."""
+    boxes = collider.swept_local_aabbs if swept else collider.local_aabbs  # (S, 2, 3)
+    c_loc = 0.5 * (boxes[:, 0] + boxes[:, 1])
+    h_loc = 0.5 * (boxes[:, 1] - boxes[:, 0])
+    R = T[..., :3, :3]
+    return np.einsum("nsij,sj->nsi", R, c_loc) + T[..., :3, 3], np.einsum("nsij,sj->nsi", np.abs(R), h_loc)
 
 
 def _bounding_spheres(collider: GripperCollider, T: np.ndarray, swept: bool) -> tuple[np.ndarray, np.ndarray]:
