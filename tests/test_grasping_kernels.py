@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from grasping import GripperCollider, load_gripper, rotate_about_approach
-from grasping._collision import PointClearance, grippers_collide, grippers_collide_many
+from grasping._collision import PointClearance, grippers_collide, grippers_collide_many, obb_overlap
 
 
 @pytest.fixture(scope="module")
@@ -54,6 +54,24 @@ def test_grippers_collide_many_equals_pairwise_coal(collider, swept1, swept2):
     assert 10 < want.sum() < 140  # both outcomes occur
     assert np.array_equal(got, want)
     assert grippers_collide(collider, T1, 0.03, T2[0], w2[0], 0.015, swept1, swept2) == want[0]
+
+
+def test_obb_overlap_equals_coal_on_boxes():
+    """The separating-axis broad phase agrees with coal on pairs of boxes, touching or not, parallel included."""
+    import coal
+
+    rng = np.random.default_rng(8)
+    n = 3000
+    A, B = _random_poses(rng, n, 0.05), _random_poses(rng, n, 0.05)
+    B[:200, :3, :3] = A[:200, :3, :3]  # parallel edges: cross-product axes vanish
+    h1, h2 = rng.uniform(0.005, 0.05, (n, 3)), rng.uniform(0.005, 0.05, (n, 3))
+    got = obb_overlap(A[:, :3, 3], A[:, :3, :3], h1, B[:, :3, 3], B[:, :3, :3], h2)
+    req = coal.CollisionRequest()
+    want = np.array([coal.collide(coal.Box(*(2 * h1[p])), coal.Transform3s(A[p, :3, :3], A[p, :3, 3]),
+                                  coal.Box(*(2 * h2[p])), coal.Transform3s(B[p, :3, :3], B[p, :3, 3]), req,
+                                  coal.CollisionResult()) for p in range(n)])
+    assert 0.1 < want.mean() < 0.9 and 0.1 < want[:200].mean() < 0.9
+    assert np.array_equal(got, want)
 
 
 def test_point_clearance_equals_kdtree():
