@@ -15,7 +15,6 @@ approach    1 from straight above, 0.5 from the side (never from below, which th
 
 from __future__ import annotations
 
-import warnings
 from typing import NamedTuple
 
 import numpy as np
@@ -37,15 +36,43 @@ UNSEEN_CONTACT = 0.7  # antipodal term factor when one finger lands only on comp
 
 
 def antipodal_quality(P: np.ndarray, N: np.ndarray, T_b_g: np.ndarray, width: np.ndarray, gripper, cone_cos: float,
-                      band: float = 0.004, observed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                      band: float = 0.004, observed: np.ndarray | None = None, chunk: int = 128) -> Antipodal:
     """Per grasp (n,): antipodal term, contact term, the number of points in the closing region, whether the
     lower (-y) and the upper (+y) finger's side was seen, and the weaker finger's median |n . y|
     (an :class:`Antipodal` tuple).
 
     P (M, 3) object points and N (M, 3) their normals; T_b_g (n, 4, 4); width (n,). ``observed`` (M,) marks
     the points a camera saw: a finger whose contact band holds only completed points scales the term by
-    ``UNSEEN_CONTACT``.
+    ``UNSEEN_CONTACT``. Computed ``chunk`` grasps at a time (the (n, M) arrays of a thousand grasps on a
+    few thousand points would not stay in cache).
     """
+    if observed is None:
+        observed = np.ones(len(P), dtype=bool)
+    parts = [_antipodal_chunk(P, N, T_b_g[a:a + chunk], width[a:a + chunk], gripper, cone_cos, band, observed)
+             for a in range(0, len(T_b_g), chunk)]
+    if not parts:
+        return Antipodal(*(np.zeros(0, dtype=d) for d in (float, float, int, bool, bool, float)))
+    return Antipodal(*(np.concatenate(col) for col in zip(*parts)))
+
+
+def _row_medians(mask: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """(n,) the median of each row's ``values`` (n, M) where ``mask`` (n, M); NaN for an empty row. The same
+    numbers as ``np.nanmedian`` over the masked rows (the mean of the two middle values for an even count),
+    from one sort of the masked entries instead of a partition of every full row."""
+    r, c = np.nonzero(mask)
+    v = values[r, c]
+    order = np.lexsort((v, r))
+    v = v[order]
+    counts = np.bincount(r, minlength=len(mask))
+    starts = np.cumsum(counts) - counts
+    has = counts > 0
+    med = np.full(len(mask), np.nan)
+    med[has] = (v[(starts + (counts - 1) // 2)[has]] + v[(starts + counts // 2)[has]]) / 2
+    return med
+
+
+def _antipodal_chunk(P, N, T_b_g, width, gripper, cone_cos: float, band: float, observed: np.ndarray) -> tuple:
+    """``antipodal_quality`` for a few grasps T_b_g (n, 4, 4), width (n,)."""
     R = T_b_g[:, :3, :3]
     L = np.matmul(P[None], R) - np.matmul(T_b_g[:, None, :3, 3], R)
     fx, fz = gripper.finger_x, gripper.finger_z
@@ -58,25 +85,20 @@ def antipodal_quality(P: np.ndarray, N: np.ndarray, T_b_g: np.ndarray, width: np
     lo = reg & (y <= ymin + band)
     hi = reg & (y >= ymax - band)
     # median over each finger's band: the pad presses the face, and the few points of an adjacent face at
-    # the edge (a box's top) must not decide
-    with warnings.catch_warnings():  # an empty band (all NaN) is a 0 below
-        warnings.simplefilter("ignore", RuntimeWarning)
-        a_lo = np.nanmedian(np.where(lo, ny, np.nan), axis=1)
-        a_hi = np.nanmedian(np.where(hi, ny, np.nan), axis=1)
-    a_lo, a_hi = np.nan_to_num(a_lo, nan=0.0), np.nan_to_num(a_hi, nan=0.0)
+    # the edge (a box's top) must not decide; an empty band is a 0
+    a_lo = np.nan_to_num(_row_medians(lo, ny), nan=0.0)
+    a_hi = np.nan_to_num(_row_medians(hi, ny), nan=0.0)
     a = np.minimum(a_lo, a_hi)
     anti = np.clip((a - cone_cos) / (1 - cone_cos), 0.0, 1.0)
     # a finger's side counts as seen when a camera saw points of a face it presses (normal along the
     # closing axis), not only the edge of a neighbouring face
-    if observed is None:
-        observed = np.ones(len(P), dtype=bool)
     face = observed[None] & (ny >= cone_cos)
     seen_lo, seen_hi = (lo & face).any(1), (hi & face).any(1)
     anti = anti * np.where(seen_lo & seen_hi, 1.0, UNSEEN_CONTACT)
     z = L[..., 2]
     zspan = np.where(reg, z, -np.inf).max(1) - np.where(reg, z, np.inf).min(1)
     contact = np.clip(np.where(np.isfinite(zspan), zspan, 0.0) / gripper.finger_length, 0.0, 1.0)
-    return Antipodal(anti, contact, reg.sum(1), seen_lo, seen_hi, a)
+    return anti, contact, reg.sum(1), seen_lo, seen_hi, a
 
 
 def score_grasps(gs, geo, support, gripper, collider, others, params):
