@@ -357,25 +357,31 @@ class PointClearance:
         Q = np.asarray(points, dtype=np.float64)
         M = Q.shape[0]
         flat = Q.reshape(-1, 3)
-        owner = np.repeat(np.arange(M), len(flat) // max(M, 1))
+        K = len(flat) // max(M, 1)
+        owner = np.repeat(np.arange(M), K)
         inside = np.all((flat >= self.lo) & (flat <= self.hi), axis=1)
         idx = np.floor((flat[inside] - self.origin) / self.cell).astype(np.int64)
         idx = tuple(np.minimum(idx, self.shape - 1).T)
         hit = np.zeros(len(flat), dtype=bool)
         hit[inside] = self.too_close[idx]
         bad = np.bincount(owner[hit], minlength=M) > 0
-        cand = np.zeros(len(flat), dtype=bool)
-        cand[inside] = self.near[idx]
-        cand &= ~hit & ~bad[owner]  # a move already too close needs no more answers
-        if cand.any():
-            d, _ = self.tree.query(flat[cand], k=1, distance_upper_bound=self.clearance)
-            bad |= np.bincount(owner[cand][np.isfinite(d)], minlength=M) > 0
-        out = ~inside & ~bad[owner]
-        if out.any():
-            if self._tree_all is None:
-                from scipy.spatial import cKDTree
+        ask = ~inside  # the points the grid cannot decide: outside the region, or in its band
+        ask[inside] = self.near[idx] & ~hit[inside]
+        ask = np.nonzero(ask & ~bad[owner])[0]  # a move already too close needs no more answers
+        if len(ask) and (~inside[ask]).any() and self._tree_all is None:
+            from scipy.spatial import cKDTree
 
-                self._tree_all = cKDTree(self.points)
-            d, _ = self._tree_all.query(flat[out], k=1, distance_upper_bound=self.clearance)
-            bad |= np.bincount(owner[out][np.isfinite(d)], minlength=M) > 0
+            self._tree_all = cKDTree(self.points)
+        # the tree in rounds of 1, 2, 4, ... points per move, in a fixed shuffled order of the set's points: a
+        # move too close somewhere is usually found so within a few points, and then asks no more
+        rank = np.random.default_rng(0).permutation(K)[ask % K] if K else ask
+        lo = 0
+        while len(ask):
+            now = rank < 2 * lo + 1
+            for sel, tree in ((now & inside[ask], self.tree), (now & ~inside[ask], self._tree_all)):
+                if sel.any():
+                    d, _ = tree.query(flat[ask[sel]], k=1, distance_upper_bound=self.clearance)
+                    bad |= np.bincount(owner[ask[sel]][np.isfinite(d)], minlength=M) > 0
+            keep = ~now & ~bad[owner[ask]]
+            ask, rank, lo = ask[keep], rank[keep], 2 * lo + 1
         return ~bad
