@@ -230,35 +230,43 @@ def _frames(face: _Face, up: np.ndarray, params: PushParams) -> list[tuple[float
 
 
 def _pads(geo: ObjectGeometry, face: _Face, tips: list[np.ndarray], R: np.ndarray, o: np.ndarray,
-          params: PushParams) -> tuple[int, int, float, bool]:
-    """``(landed, seen, align, inside)`` of the fingertips at pose (R, o) on ``face``.
+          params: PushParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(landed, seen, align, inside)`` (C,) of the fingertips at the poses (R (C, 3, 3), o (C, 3)) on ``face``.
 
     The pads must lie inside the box's face, and each on seen face points whose local plane is inside the
     friction cone, or (on a planar face) between its points (a face is often seen only in part: the pad then
     rests on the box model of the face, which the score marks down).
     """
     up, ext = geo.T_b1_box[:3, 2], geo.extent
-    landed, seen, align, inside = 0, 0, 1.0, True
+    C = len(R)
+    landed, seen, align, inside = np.zeros(C, int), np.zeros(C, int), np.ones(C), np.ones(C, bool)
+    normals: dict[bytes, float] = {}  # |cos| of a pad's plane, by the face points it rests on (poses share them)
     for tc in tips:
-        tw = tc @ R.T + o - geo.centre
-        lo_l, hi_l = (tw @ face.t).min() - 0.002, (tw @ face.t).max() + 0.002
-        lo_h, hi_h = (tw @ up).min() - 0.002, (tw @ up).max() + 0.002
-        inside &= (max(abs(lo_l), abs(hi_l)) <= 0.5 * ext[1 - face.axis] - params.edge_margin
-                   and lo_h >= -0.5 * ext[2] + params.edge_margin and hi_h <= 0.5 * ext[2] - params.edge_margin)
+        tw = tc @ np.swapaxes(R, 1, 2) + (o - geo.centre)[:, None]  # (C, 4, 3) the tip's corners
+        pl, ph = tw @ face.t, tw @ up
+        lo_l, hi_l = pl.min(axis=1) - 0.002, pl.max(axis=1) + 0.002
+        lo_h, hi_h = ph.min(axis=1) - 0.002, ph.max(axis=1) + 0.002
+        inside &= ((np.maximum(np.abs(lo_l), np.abs(hi_l)) <= 0.5 * ext[1 - face.axis] - params.edge_margin)
+                   & (lo_h >= -0.5 * ext[2] + params.edge_margin) & (hi_h <= 0.5 * ext[2] - params.edge_margin))
         # the face around the fingertip (within fit_radius of it): points there, and a plane fitted to them
         # (per-point normals of a face seen at a grazing angle are too noisy; a sparse face still has a
         # well-defined plane)
         mid_l, mid_h = 0.5 * (lo_l + hi_l), 0.5 * (lo_h + hi_h)
-        around = np.hypot(face.lat - mid_l, face.hgt - mid_h) < params.fit_radius
-        if around.sum() >= params.min_pad_points:
-            landed += 1
-            seen += (around & face.observed).sum() >= params.min_pad_points
-            Q = face.points[around] - face.points[around].mean(axis=0)
-            normal = np.linalg.svd(Q, full_matrices=False)[2][-1]
-            align = min(align, abs(float(normal @ face.n)))
-        elif face.planar and face.rect[0][0] <= mid_l <= face.rect[0][1] and face.rect[1][0] <= mid_h <= face.rect[1][1]:
-            landed += 1  # on the face's plane, between points seen around it
-            align = min(align, face.align)
+        around = np.hypot(face.lat - mid_l[:, None], face.hgt - mid_h[:, None]) < params.fit_radius  # (C, K)
+        on = around.sum(axis=1) >= params.min_pad_points
+        landed += on
+        seen += on & ((around & face.observed).sum(axis=1) >= params.min_pad_points)
+        for c in np.nonzero(on)[0]:
+            key = around[c].tobytes()
+            if key not in normals:
+                Q = face.points[around[c]] - face.points[around[c]].mean(axis=0)
+                normals[key] = abs(float(np.linalg.svd(Q, full_matrices=False)[2][-1] @ face.n))
+            align[c] = min(align[c], normals[key])
+        if face.planar:  # on the face's plane, between points seen around it
+            between = (~on & (face.rect[0][0] <= mid_l) & (mid_l <= face.rect[0][1]) & (face.rect[1][0] <= mid_h)
+                       & (mid_h <= face.rect[1][1]))
+            landed += between
+            align[between] = np.minimum(align[between], face.align)
     return landed, seen, align, inside
 
 
@@ -268,28 +276,34 @@ def _face_rows(geo: ObjectGeometry, support: Support, face: _Face, tips: list[np
     as rows ``(T, face axis, face sign, height fraction, tilt, pad alignment, contact width, n, seen, contact)``."""
     up, ext, n = geo.T_b1_box[:3, 2], geo.extent, face.n
     frames = _frames(face, up, params)
+    tilts = np.array([tilt for tilt, _ in frames])
+    R = np.stack([Rf for _, Rf in frames])  # (F, 3, 3)
+    Rt = np.swapaxes(R, 1, 2)
+    # fingertips on the face: shifted along the normal so that the deepest tip corner touches it
+    depth_c = [(tc @ Rt) @ -n for tc in tips]  # (F, 4) per tip
+    pen = np.max([dc.max(axis=1) for dc in depth_c], axis=0)
+    touching = [tc[None] * (dc >= dc.max(axis=1, keepdims=True) - 1e-6)[..., None] for tc, dc in zip(tips, depth_c)]
+    n_touch = sum((dc >= dc.max(axis=1, keepdims=True) - 1e-6).sum(axis=1) for dc in depth_c)
+    touch = sum(t.sum(axis=1) for t in touching) / n_touch[:, None]  # (F, 3) the touching corners' mean, in g
+    lowest = (all_corners @ Rt) @ up  # (F, corners): the gripper's corners' height, from o
     rows = []
     for hf in params.heights:
         c = geo.centre + face.offset * n + hf * 0.5 * ext[2] * up
-        for tilt, R in frames:
-            # fingertips on the face: shift along the normal so the deepest tip corner touches it
-            depth_c = [(tc @ R.T) @ -n for tc in tips]
-            pen = max(float(dc.max()) for dc in depth_c)
-            o = c + n * pen
-            touch = np.concatenate([tc[dc >= dc.max() - 1e-6] for tc, dc in zip(tips, depth_c)])
-            contact = touch.mean(axis=0) @ R.T + o  # where the fingertips meet the face (b1)
+        o = c + pen[:, None] * n  # (F, 3)
+        landed, seen, align, inside = _pads(geo, face, tips, R, o, params)
+        st["candidates"] += len(R)
+        bad = ~inside | (landed < len(tips)) | (align < cone_cos)
+        st["off_face"] += int((~inside).sum())
+        st["unseen"] += int((inside & (landed < len(tips))).sum())
+        st["outside_cone"] += int((inside & (landed >= len(tips)) & (align < cone_cos)).sum())
+        # the whole gripper above the table by the margin
+        low = ~bad & ((lowest + (o @ up)[:, None]).min(axis=1) - support.height < params.scene_margin + 0.002)
+        st["near_table"] += int(low.sum())
+        for f in np.nonzero(~bad & ~low)[0]:
             T = np.eye(4)
-            T[:3, :3], T[:3, 3] = R, o
-            landed, seen, align, inside = _pads(geo, face, tips, R, o, params)
-            st["candidates"] += 1
-            if not inside or landed < len(tips) or align < cone_cos:
-                st["off_face" if not inside else "unseen" if landed < len(tips) else "outside_cone"] += 1
-                continue
-            # the whole gripper above the table by the margin
-            if support.elevation(all_corners @ R.T + o).min() < params.scene_margin + 0.002:
-                st["near_table"] += 1
-                continue
-            rows.append((T, face.axis, face.sign, hf, tilt, align, ext[face.axis], n, seen / len(tips), contact))
+            T[:3, :3], T[:3, 3] = R[f], o[f]
+            rows.append((T, face.axis, face.sign, hf, tilts[f], align[f], ext[face.axis], n, seen[f] / len(tips),
+                         touch[f] @ R[f].T + o[f]))
     return rows
 
 
