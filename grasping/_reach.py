@@ -347,46 +347,57 @@ class ArmReach:
 
     def _check(self, T_b_g: np.ndarray, w: np.ndarray, rt: np.ndarray | None, ho: np.ndarray | None) -> ReachResult:
         """The reach check of ``__call__`` for grasps ``T_b_g`` (N, 4, 4), openings ``w`` (N,), retreats and
-        hold-offs (N, 3) or None, every grasp computed."""
+        hold-offs (N, 3) or None, every grasp computed.
+
+        Per grasp, in order until one passes: as given, then turned about z; for each, the IK branch nearest
+        the current configuration, then (``n_solutions`` > 1) the others, asked for all grasps at once once
+        their first branch's approach or collision check failed. The last failure is the reason."""
         n = len(T_b_g)
         J = self.robot.nq_arm
         out = ReachResult(np.zeros(n, bool), np.full((n, J), np.nan), np.full((n, J), np.nan), np.zeros(n, bool), [""] * n)
         # the grasps' IK, as given and turned about z, all in one batch (most of the cost: failures try every seed)
         T_both = np.concatenate([T_b_g, rotate_about_approach(T_b_g)])
         first = self._first_ik(T_both)
-        for i in range(n):
-            why = []
-            for flip in (False, True):
-                T = T_both[n + i] if flip else T_b_g[i]
+        why: list[list[str]] = [[] for _ in range(n)]
+        for flip in (False, True):
+            todo = []
+            for i in np.nonzero(~out.ok)[0]:
                 res = first[n + i] if flip else first[i]
-                if not res.success:
-                    why.append(res.message)
-                    continue
-                branches = [res.q]
-                if self.n_solutions > 1:  # more IK branches, only asked for when the first one's approach fails
-                    def more(T=T, q0=res.q):
-                        r = self.solver.solve(T, q_current=self.q_current, max_seeds=self.max_seeds,
-                                              n_solutions=self.n_solutions)
-                        return [q for q in r.solutions if np.abs(q - q0).max() > 1e-3]
-                    branches = _Lazy(branches, more)
-                for q in branches:  # closest to the current configuration first
-                    q_pre, q_path, msg = self._approach(T, q, None if rt is None else rt[i], None if ho is None else ho[i])
-                    if q_pre is None:
-                        why.append(msg)
-                        continue
-                    if self.world is not None:
-                        self.world.set_opening(0, self.gripper.robot_opening(float(w[i])))
-                        bad = self._collisions(np.stack([q] + q_path))
-                        if bad:
-                            why.append(bad)
-                            continue
-                    out.ok[i], out.q[i], out.q_pre[i], out.flipped[i] = True, q, q_pre, flip
-                    break
-                if out.ok[i]:
-                    break
-            if not out.ok[i]:
-                out.reason[i] = why[-1] if why else "unreachable"
+                if res.success:
+                    todo.append(i)
+                else:
+                    why[i].append(res.message)
+            for i in todo:
+                self._try_branch(out, why, i, T_both[n * flip + i], first[n * flip + i].q, flip, w, rt, ho)
+            failed = [i for i in todo if not out.ok[i]]
+            if self.n_solutions > 1 and failed:  # the grasps' other IK branches, closest to the current first
+                more = self.solver.solve_many(T_both[[n * flip + i for i in failed]], self.q_current,
+                                              max_seeds=self.max_seeds, n_solutions=self.n_solutions)
+                for i, r in zip(failed, more):
+                    q0 = first[n * flip + i].q
+                    for q in (q for q in r.solutions if np.abs(q - q0).max() > 1e-3):
+                        if self._try_branch(out, why, i, T_both[n * flip + i], q, flip, w, rt, ho):
+                            break
+        for i in np.nonzero(~out.ok)[0]:
+            out.reason[i] = why[i][-1] if why[i] else "unreachable"
         return out
+
+    def _try_branch(self, out: ReachResult, why: list, i: int, T: np.ndarray, q: np.ndarray, flip: bool,
+                    w: np.ndarray, rt: np.ndarray | None, ho: np.ndarray | None) -> bool:
+        """Grasp ``i`` at pose T (4, 4) with the IK branch q (J,): its approach and collision check; fills
+        ``out``'s row i and returns True when it passes, else appends why to ``why[i]``."""
+        q_pre, q_path, msg = self._approach(T, q, None if rt is None else rt[i], None if ho is None else ho[i])
+        if q_pre is None:
+            why[i].append(msg)
+            return False
+        if self.world is not None:
+            self.world.set_opening(0, self.gripper.robot_opening(float(w[i])))
+            bad = self._collisions(np.stack([q] + q_path))
+            if bad:
+                why[i].append(bad)
+                return False
+        out.ok[i], out.q[i], out.q_pre[i], out.flipped[i] = True, q, q_pre, flip
+        return True
 
 
 def _approach_poses(T: np.ndarray, pregrasp: float, retreat: np.ndarray | None, hold_off: np.ndarray | None
@@ -428,17 +439,6 @@ def _capability_map(robot, rot_w: float, size: int = 40000) -> tuple:
         # default 16 (the same distances)
         per_robot[(rot_w, size)] = (cKDTree(feats, leafsize=32), cKDTree(T[:, :3, 3]), T[:, :3, 2].copy())
     return per_robot[(rot_w, size)]
-
-
-class _Lazy:
-    """Iterate ``first``, then (only if the loop gets that far) what ``more()`` returns."""
-
-    def __init__(self, first: list, more):
-        self.first, self.more = first, more
-
-    def __iter__(self):
-        yield from self.first
-        yield from self.more()
 
 
 def callable_filter(fn: Callable[[np.ndarray], np.ndarray], J: int = 6) -> ReachFilter:
