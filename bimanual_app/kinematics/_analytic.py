@@ -97,17 +97,30 @@ def wrist_chain(kin, lower: np.ndarray, upper: np.ndarray, tol: float = 1e-3) ->
 
 # ---------------------------------------------------------------- batched Paden-Kahan subproblems
 
+_SKEW_T: dict[bytes, np.ndarray] = {}  # K_w^T by axis: a chain has six axes, asked for thousands of times
+
+
+def _skew_t(w: np.ndarray) -> np.ndarray:
+    """The transposed skew matrix (3, 3) of the axis w (3,) (``u @ _skew_t(w)`` = w x u for rows u)."""
+    key = w.tobytes()
+    K = _SKEW_T.get(key)
+    if K is None:
+        if len(_SKEW_T) > 64:
+            _SKEW_T.clear()
+        K = _SKEW_T[key] = skew(w).T.copy()
+    return K
+
 
 def _rotate(w: np.ndarray, r: np.ndarray, theta: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Points (N, 3): p (N, 3) rotated by theta (N,) about the axis through r (3,) along the unit w (3,)."""
     u = p - r
     c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
-    return r + u * c + (u @ skew(w).T) * s + w * (u @ w)[:, None] * (1 - c)
+    return r + u * c + (u @ _skew_t(w)) * s + w * (u @ w)[:, None] * (1 - c)
 
 
 def _rotation(w: np.ndarray, theta: np.ndarray) -> np.ndarray:
     """Rotation matrices (N, 3, 3) about the unit axis w (3,) by theta (N,) (Rodrigues)."""
-    K = skew(w)
+    K = _skew_t(w).T
     s, c = np.sin(theta)[:, None, None], (1 - np.cos(theta))[:, None, None]
     return np.eye(3) + s * K + c * (K @ K)
 
@@ -120,7 +133,7 @@ def sp1(w: np.ndarray, r: np.ndarray, p: np.ndarray, q: np.ndarray, fallback: np
     u = u - (u @ w)[:, None] * w
     v = v - (v @ w)[:, None] * w
     # (u x v) . w = u . (v x w) = -u . (K_w v)
-    theta = np.arctan2(-(u * (v @ skew(w).T)).sum(axis=1), (u * v).sum(axis=1))
+    theta = np.arctan2(-(u * (v @ _skew_t(w))).sum(axis=1), (u * v).sum(axis=1))
     degenerate = np.minimum((u * u).sum(axis=1), (v * v).sum(axis=1)) < eps ** 2
     return np.where(degenerate, fallback, theta)
 
@@ -141,10 +154,11 @@ def sp2(w1, w2, r, p, q, fallback1, fallback2, eps1: float = 1e-9):
     ok = g2 > -1e-3 * np.sqrt(uu + 1e-12)
     g = np.sqrt(np.maximum(g2, 0.0))
     # both solutions at once: rows (2N), the + sign's first
-    z = r + np.tile(alpha[:, None] * w1 + beta[:, None] * w2, (2, 1)) + np.concatenate([g, -g])[:, None] * n
-    p2, q2 = np.tile(p, (2, 1)), np.tile(q, (2, 1))
-    t2 = sp1(w2, r, p2, z, np.tile(fallback2, 2))
-    t1 = sp1(w1, r, _rotate(w2, r, t2, p2), q2, np.tile(fallback1, 2), eps1)
+    m = alpha[:, None] * w1 + beta[:, None] * w2
+    z = r + np.concatenate([m, m]) + np.concatenate([g, -g])[:, None] * n
+    p2, q2 = np.concatenate([p, p]), np.concatenate([q, q])
+    t2 = sp1(w2, r, p2, z, np.concatenate([fallback2, fallback2]))
+    t1 = sp1(w1, r, _rotate(w2, r, t2, p2), q2, np.concatenate([fallback1, fallback1]), eps1)
     return t1.reshape(2, -1).T, t2.reshape(2, -1).T, ok
 
 
@@ -155,7 +169,7 @@ def sp3(w, r, p, q, delta):
     up = u - (u @ w)[:, None] * w
     vp = v - (v @ w)[:, None] * w
     d2 = delta ** 2 - ((p - q) @ w) ** 2
-    theta0 = np.arctan2(-(up * (vp @ skew(w).T)).sum(axis=1), (up * vp).sum(axis=1))
+    theta0 = np.arctan2(-(up * (vp @ _skew_t(w))).sum(axis=1), (up * vp).sum(axis=1))
     nu, nv = np.sqrt((up * up).sum(axis=1)), np.sqrt((vp * vp).sum(axis=1))
     cos_phi = (nu ** 2 + nv ** 2 - d2) / np.maximum(2 * nu * nv, 1e-12)
     slack = 1e-3 * (nu + nv) / np.maximum(nu * nv, 1e-12)  # a 1 mm shortfall of the distance, in cosine terms
