@@ -161,8 +161,21 @@ def rotate_about_approach(T_b_g: np.ndarray) -> np.ndarray:
     return np.asarray(T_b_g) @ F
 
 
-def _contact_pairs(P: np.ndarray, N: np.ndarray, seeds: np.ndarray, p: SamplerParams, max_cw: float):
-    """For seed indices (S,): partner indices (S,) (-1 when none) and closing axes (S, 3)."""
+def _contact_pairs(P: np.ndarray, N: np.ndarray, seeds: np.ndarray, p: SamplerParams, max_cw: float,
+                   rows: int = 128):
+    """For seed indices (S,): partner indices (2S,) (-1 when none) and closing axes (2S, 3): the farthest
+    partners of all seeds, then the nearest ones. ``rows`` seeds at a time (the (S, M) arrays stay in cache)."""
+    parts = [_contact_pairs_rows(P, N, seeds[a:a + rows], p, max_cw) for a in range(0, len(seeds), rows)]
+    if not parts:
+        return np.zeros(0, dtype=int), np.zeros((0, 3))
+    half = [len(j) // 2 for j, _ in parts]  # each part: its seeds' farthest partners, then their nearest
+    j = np.concatenate([j[:h] for (j, _), h in zip(parts, half)] + [j[h:] for (j, _), h in zip(parts, half)])
+    y = np.concatenate([y[:h] for (_, y), h in zip(parts, half)] + [y[h:] for (_, y), h in zip(parts, half)])
+    return j, y
+
+
+def _contact_pairs_rows(P: np.ndarray, N: np.ndarray, seeds: np.ndarray, p: SamplerParams, max_cw: float):
+    """``_contact_pairs`` for a few seeds."""
     cos_c = p.cone_cos
     d = -N[seeds]  # (S, 3) into the object
     Ps = P[seeds]
