@@ -232,6 +232,16 @@ def _frame_view(ax, plan: GraspPlan, drawn: list, title: str, a: int, b: int) ->
     ax.set_ylabel("xyz"[b] + " (m)")
 
 
+def _dots(ax, x: np.ndarray, y: np.ndarray, labels: np.ndarray, colors: np.ndarray, depth: np.ndarray) -> None:
+    """Points (N,) at (x, y) as one-pixel dots, one ``plot`` per label (coloured ``colors`` (N, 4)), the labels
+    nearest the viewer (largest mean ``depth``) drawn last: Agg draws a pixel marker several times faster than
+    a scatter's per-point circles (0.2 s for 30,000 points), which at this size look the same."""
+    keys = np.unique(labels)
+    for k in sorted(keys, key=lambda k: (k >= 0, float(depth[labels == k].mean()))):  # unlabelled below
+        m = labels == k
+        ax.plot(x[m], y[m], ",", color=colors[np.argmax(m)], linestyle="none", zorder=1)  # a scatter's layer
+
+
 def draw_plan(path: str | Path, plan: GraspPlan, points: np.ndarray, labels: np.ndarray, max_points: int = 30000) -> None:
     """grasps.png: top and side views of the cloud with each object's best grasp, joint pair and hand-over."""
     import matplotlib
@@ -249,8 +259,7 @@ def draw_plan(path: str | Path, plan: GraspPlan, points: np.ndarray, labels: np.
     views = [("top view (x-y in b1)", 0, 1), ("side view (x-z in b1)", 0, 2)]
     drawn = _drawn_grippers(plan)
     for ax, (title, a, b) in zip(axes, views):
-        order = np.argsort(P[:, 2] if b != 2 else P[:, 1])
-        ax.scatter(P[order, a], P[order, b], s=0.6, c=colors[order], linewidths=0)
+        _dots(ax, P[:, a], P[:, b], L, colors, P[:, 2] if b != 2 else P[:, 1])
         _draw_objects(ax, plan, a, b)
         seen = set()
         for segs, col, lab in drawn:
