@@ -14,12 +14,14 @@ rigidly moved copies of an object's points keep a clearance from the scene (the 
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from ._gripper import GripperModel
 
 __all__ = ["SceneOctree", "GripperCollider", "grippers_collide", "grippers_collide_many", "grippers_distance",
-           "points_in_gripper"]
+           "points_in_gripper", "place_grippers", "PlacedGrippers"]
 
 
 class SceneOctree:
@@ -229,24 +231,50 @@ def _bounding_spheres(collider: GripperCollider, T: np.ndarray, swept: bool) -> 
     return np.einsum("nsij,sj->nsi", T[..., :3, :3], c_loc) + T[..., :3, 3], r
 
 
-def grippers_collide_many(collider: GripperCollider, T_b_g1: np.ndarray, w1: float, T_b_g2: np.ndarray,
-                          w2: np.ndarray, margin: float = 0.0, swept1: bool = False, swept2: bool = False) -> np.ndarray:
-    """(K,) bool: one gripper (pose (4, 4), opening ``w1``) comes within ``margin`` of each of K others (poses
-    (K, 4, 4) in the same frame, openings ``w2`` (K,)); ``swept1`` / ``swept2`` use that gripper's approach (or
-    retreat) sweep instead of its pose.
+class PlacedGrippers(NamedTuple):
+    """K grippers placed for ``grippers_collide_many`` (``place_grippers``): every shape's pose (K, S, 4, 4), its
+    bounding sphere's centre (K, S, 3) and radius (S,), its box's centre (K, S, 3) and half-sizes (S, 3)."""
 
-    A broad phase on bounding spheres (all K x S x S shape pairs at once in numpy) leaves coal's exact test to
-    the pairs whose spheres come within ``margin``: the answer is coal's, the spheres only skip pairs that
-    cannot touch."""
+    T: np.ndarray
+    sphere_c: np.ndarray
+    sphere_r: np.ndarray
+    box_c: np.ndarray
+    box_h: np.ndarray
+    swept: bool
+
+    def take(self, idx) -> PlacedGrippers:
+        """The grippers ``idx`` of these."""
+        return PlacedGrippers(self.T[idx], self.sphere_c[idx], self.sphere_r, self.box_c[idx], self.box_h, self.swept)
+
+
+def place_grippers(collider: GripperCollider, T_b_g: np.ndarray, w: np.ndarray, swept: bool = False) -> PlacedGrippers:
+    """Grippers at poses ``T_b_g`` (K, 4, 4), openings ``w`` (K,) (their approach sweeps when ``swept``), placed
+    once for many ``grippers_collide_many`` calls against them."""
+    T_b_g = np.asarray(T_b_g, dtype=np.float64).reshape(-1, 4, 4)
+    T = collider._placements(T_b_g, np.broadcast_to(np.asarray(w, dtype=np.float64), (len(T_b_g),)), swept)
+    c, r = _bounding_spheres(collider, T, swept)
+    box_c, _, box_h = _oriented_boxes(collider, T, swept)
+    return PlacedGrippers(T, c, r, box_c, box_h, swept)
+
+
+def grippers_collide_many(collider: GripperCollider, T_b_g1: np.ndarray, w1: float, T_b_g2: np.ndarray | None,
+                          w2: np.ndarray | None, margin: float = 0.0, swept1: bool = False, swept2: bool = False,
+                          placed2: PlacedGrippers | None = None) -> np.ndarray:
+    """(K,) bool: one gripper (pose (4, 4), opening ``w1``) comes within ``margin`` of each of K others (poses
+    (K, 4, 4) in the same frame, openings ``w2`` (K,); or ``placed2``, ``place_grippers`` of them, instead);
+    ``swept1`` / ``swept2`` use that gripper's approach (or retreat) sweep instead of its pose.
+
+    A broad phase on bounding spheres (all K x S x S shape pairs at once in numpy), then on the shapes' boxes,
+    leaves coal's exact test to the pairs that may touch within ``margin``: the answer is coal's."""
     import coal
 
-    T2 = np.asarray(T_b_g2, dtype=np.float64).reshape(-1, 4, 4)
-    K = len(T2)
+    B = placed2 if placed2 is not None else place_grippers(collider, T_b_g2, w2, swept2)
+    swept2 = B.swept
+    K = len(B.T)
     A = collider._placements(np.asarray(T_b_g1, dtype=np.float64)[None], np.array([float(w1)]), swept1)[0]  # (S, 4, 4)
-    B = collider._placements(T2, np.broadcast_to(np.asarray(w2, dtype=np.float64), (K,)), swept2)  # (K, S, 4, 4)
     ca, ra = _bounding_spheres(collider, A[None], swept1)
-    cb, rb = _bounding_spheres(collider, B, swept2)
-    gap = np.linalg.norm(cb[:, None, :, :] - ca[0][None, :, None, :], axis=-1) - ra[None, :, None] - rb[None, None, :]
+    gap = (np.linalg.norm(B.sphere_c[:, None, :, :] - ca[0][None, :, None, :], axis=-1) - ra[None, :, None]
+           - B.sphere_r[None, None, :])
     near = gap <= margin + 1e-9  # (K, Sa, Sb): pairs the exact test must see
     hit = np.zeros(K, dtype=bool)
     if not near.any():
@@ -254,9 +282,8 @@ def grippers_collide_many(collider: GripperCollider, T_b_g1: np.ndarray, w1: flo
     # then the shapes' oriented boxes (A's grown by the margin), on the pairs whose spheres came near
     k, a, b = np.nonzero(near)
     box_a = _oriented_boxes(collider, A[None], swept1)
-    box_b = _oriented_boxes(collider, B, swept2)
     near[k, a, b] = obb_overlap(box_a[0][0, a], box_a[1][0, a], box_a[2][a] + margin + 1e-9,
-                                box_b[0][k, b], box_b[1][k, b], box_b[2][b])
+                                B.box_c[k, b], B.T[k, b, :3, :3], B.box_h[b])
     if not near.any():
         return hit
     ga = [g for g, _ in collider.swept] if swept1 else [s.geometry for s in collider.gripper.shapes]
@@ -268,7 +295,7 @@ def grippers_collide_many(collider: GripperCollider, T_b_g1: np.ndarray, w1: flo
         if hit[k]:
             continue
         res.clear()
-        Tb = B[k, b]
+        Tb = B.T[k, b]
         if coal.collide(ga[a], ta[a], gb[b], coal.Transform3s(Tb[:3, :3], Tb[:3, 3]), req, res):
             hit[k] = True
     return hit

@@ -45,7 +45,14 @@ from bimanual_app.transforms import inv_T, perpendicular_basis
 
 from ._antipodal import GraspSet, rotate_about_approach
 from ._arms import Arm, ArmGrasps, TwoArmCheck, reachable_grasps
-from ._collision import GripperCollider, PointClearance, grippers_collide_many, grippers_distance
+from ._collision import (
+    GripperCollider,
+    PlacedGrippers,
+    PointClearance,
+    grippers_collide_many,
+    grippers_distance,
+    place_grippers,
+)
 from ._handover_pairs import PairParams, pair_costs, pair_moves
 from ._objects import ObjectGeometry, Support
 
@@ -266,17 +273,26 @@ def _transfer_moves(geo: ObjectGeometry, support: Support, T_b1_b2: np.ndarray, 
     return moves
 
 
+def _place_receivers(collider: GripperCollider, free: GraspSet) -> tuple[PlacedGrippers, PlacedGrippers]:
+    """The free-space grasps ``free`` placed for ``_clear_receivers``, once for all givers: open and swept
+    along their approach, and closed on the object."""
+    return (place_grippers(collider, free.T_b1_g, free.width, swept=True),
+            place_grippers(collider, free.T_b1_g, free.contact_width))
+
+
 def _clear_receivers(collider: GripperCollider, G: np.ndarray, w_open: float, w_closed: float, free: GraspSet,
-                     gap: float) -> np.ndarray:
+                     gap: float, placed: tuple[PlacedGrippers, PlacedGrippers] | None = None) -> np.ndarray:
     """Indices of the free-space grasps ``free`` whose open gripper (swept along its approach) keeps ``gap``
     from the giver's closed gripper at ``G`` (4, 4), and whose closed gripper the giver's retreat sweep (open
-    at ``w_open``) keeps ``gap`` from. Both grippers hold the object where it lies; moving it moves both."""
+    at ``w_open``) keeps ``gap`` from. Both grippers hold the object where it lies; moving it moves both.
+    ``placed``: ``_place_receivers(collider, free)``, when already made."""
     if not len(free):
         return np.zeros(0, dtype=int)
-    hit = grippers_collide_many(collider, G, w_closed, free.T_b1_g, free.width, margin=gap, swept2=True)
+    open_swept, closed = placed if placed is not None else _place_receivers(collider, free)
+    hit = grippers_collide_many(collider, G, w_closed, None, None, margin=gap, placed2=open_swept)
     todo = np.nonzero(~hit)[0]
-    hit[todo] = grippers_collide_many(collider, G, w_open, free.T_b1_g[todo], free.contact_width[todo], margin=gap,
-                                      swept1=True)
+    hit[todo] = grippers_collide_many(collider, G, w_open, None, None, margin=gap, swept1=True,
+                                      placed2=closed.take(todo))
     return np.nonzero(~hit)[0]
 
 
@@ -323,8 +339,9 @@ def handover_givers(picks: GraspSet, free: GraspSet, reached: ArmGrasps, prim: A
     the others through its reach filter (at most ``params.giver_tries`` checks).
     """
     w_release = release_width(picks.width, picks.contact_width, params)
+    placed = _place_receivers(collider, free) if len(free) else None
     clear = [_clear_receivers(collider, picks.T_b1_g[i], float(w_release[i]), float(picks.contact_width[i]),
-                              free, params.gap) for i in range(len(picks))]
+                              free, params.gap, placed) for i in range(len(picks))]
     n = np.array([len(c) for c in clear], dtype=int)
     cand = np.nonzero(n > 0)[0]
     hold = np.round(giver_hold_probability(picks.depth[cand], params), 1)
@@ -443,12 +460,13 @@ def _ranked_transfers(geo, support, giver, free, arms, collider, params, clear, 
     prim = arms["primary"]
     clear_of, scored, pending = {}, {}, []  # giver -> clear receivers; giver -> (moves, prior, receivers, first)
     n_pref = 0
+    placed = _place_receivers(collider, free) if clear is None and len(free) else None
     for gi in range(min(params.givers, len(giver))):
         G = giver.grasps.T_b1_g[gi]
         clear_g = (clear[gi] if clear is not None else
                    _clear_receivers(collider, G, float(release_width(giver.grasps.width[gi], giver.grasps.contact_width[gi],
                                                                      params)),
-                                    float(giver.grasps.contact_width[gi]), free, params.gap))
+                                    float(giver.grasps.contact_width[gi]), free, params.gap, placed))
         stats["clear_receivers"] += len(clear_g)
         if not len(clear_g):
             continue
