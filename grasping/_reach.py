@@ -171,7 +171,8 @@ class ArmReach:
                     T[:3, :3] = np.stack([np.cross(y, z), y, z], axis=1)
                     T[:3, 3] = p_b
                     poses.append(T)
-        ok = np.array([r.success for r in self.solver.solve_many(np.stack(poses), max_seeds=4)]).reshape(-1, 2)
+        ok = np.array([r.success for r in self.solver.solve_many(np.stack(poses), max_seeds=4, screen=True)])
+        ok = ok.reshape(-1, 2)
         return np.array(dirs)[ok.any(axis=1)].reshape(-1, 3)
 
     _ROT_W = 0.1  # metres per unit of rotation-matrix difference
@@ -290,14 +291,16 @@ class ArmReach:
         seeds are deterministic: the current configuration, then the closed-form branches or the nearest
         poses of the solver's table)."""
         if self.max_seeds > 1 + self.solver.n_near:  # random seeds would make a repeat differ
-            return self.solver.solve_many(T, self.q_current, max_seeds=self.max_seeds)
+            return self.solver.solve_many(T, self.q_current, max_seeds=self.max_seeds, screen=True)
         cache = self._ik_cache
         keys = [(Tk.tobytes(), self.q_current.tobytes(), self.max_seeds) for Tk in T]
         todo = [k for k, key in enumerate(keys) if key not in cache]
         if todo:
             if len(cache) + len(todo) > self.FIRST_IK_CACHE:
                 cache.clear()
-            for k, r in zip(todo, self.solver.solve_many(T[todo], self.q_current, max_seeds=self.max_seeds)):
+            # screened by the closed form: most candidates far from the current configuration are out of reach
+            for k, r in zip(todo, self.solver.solve_many(T[todo], self.q_current, max_seeds=self.max_seeds,
+                                                         screen=True)):
                 cache[keys[k]] = r
         return [cache[key] for key in keys]
 

@@ -181,3 +181,24 @@ def test_a_target_outside_the_limits_or_beyond_reach_costs_no_branch(piper, solv
     far[:3, :3] = Rotation.from_euler("y", np.pi).as_matrix()  # pointing down: the wrist centre 0.1 m higher
     r = solver.solve(far, max_seeds=8)
     assert not r.success and r.seeds == 1 and "wrist centre is beyond" in r.message
+
+
+def test_a_screened_batch_gives_every_target_the_same_outcome_without_descending_the_hopeless_ones(piper, solver):
+    """``screen=True``: targets none of whose branches lies within the limits fail at once; the others get
+    the solution they get unscreened (the same seeds in the same order)."""
+    rng = np.random.default_rng(17)
+    q = piper.random_q(300, rng=6)
+    T = piper.fk_link(q, piper.tcp_link)
+    T[:, :3, 3] += rng.normal(0.0, 0.1, (len(T), 3))  # about half of these are out of reach
+    q0 = piper.neutral()
+    plain = solver.solve_many(T, q0, max_seeds=6)
+    screened = solver.solve_many(T, q0, max_seeds=6, screen=True)
+    ok = np.array([r.success for r in plain])
+    assert 0.2 < ok.mean() < 0.8
+    assert np.array_equal(ok, [r.success for r in screened])
+    for a, b in zip(plain, screened):
+        if a.success:
+            np.testing.assert_allclose(a.q, b.q, atol=1e-9)
+        elif b.seeds == 0 and a.seeds > 0:  # screened out: no descent at all (not just beyond the table's reach)
+            assert "every closed-form branch leaves them" in b.message or "beyond the arm's reach" in b.message
+    assert sum(r.seeds == 0 for r in screened) > sum(r.seeds == 0 for r in plain) + 20

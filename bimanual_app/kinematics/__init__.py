@@ -3,8 +3,9 @@
 Public API:
     IKSolver(robot, link=None, tol_pos=1e-4, tol_rot=1e-3, ...).solve(T_target, q_current=None,
              position_only=False, n_solutions=1) -> IKResult
-    IKSolver.solve_many(T_targets (N,4,4), q_current=None | (J,) | (N,J), ...) -> [IKResult] * N
-             (the same results as N ``solve`` calls; all targets' seeds descend together, vectorised)
+    IKSolver.solve_many(T_targets (N,4,4), q_current=None | (J,) | (N,J), ..., screen=False) -> [IKResult] * N
+             (the same results as N ``solve`` calls; all targets' seeds descend together, vectorised;
+             ``screen``: targets with no closed-form branch within the limits fail without a descent)
     For an arm with a wrist centre (the Piper) the seeds after the current configuration are the closed-form
     branches (``_analytic``: ``wrist_chain``, ``ik_branches``), polished by the same damped least squares.
     solve_ik(robot, T_target, q_current=None, **kw) -> IKResult   (caches one IKSolver per robot and link)

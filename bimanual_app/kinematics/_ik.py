@@ -207,7 +207,8 @@ class IKSolver:
         return self.solve_many(T_target[None], q_current, position_only, n_solutions, max_seeds, seeds)[0]
 
     def solve_many(self, T_targets: np.ndarray, q_current: np.ndarray | None = None, position_only: bool = False,
-                   n_solutions: int = 1, max_seeds: int = 16, seeds: np.ndarray | None = None) -> list[IKResult]:
+                   n_solutions: int = 1, max_seeds: int = 16, seeds: np.ndarray | None = None,
+                   screen: bool = False) -> list[IKResult]:
         """IK for each of ``T_targets`` (N, 4, 4), from ``q_current`` (J,) or one per target (N, J); one
         ``IKResult`` per target, each the one ``solve`` gives for that target alone. ``seeds`` (S, J), when
         given, are every target's further starts (clipped to the limits; at most ``max_seeds - 1`` of them).
@@ -215,6 +216,12 @@ class IKSolver:
         The seeds of all targets descend together (``_dls.descend``): first every target's current
         configuration, then, for the targets that still lack solutions, all their remaining seeds at once
         (the solutions are then taken in seed order, as one target's sequential search would).
+
+        ``screen`` (a chain with a closed form, full poses, no ``seeds``): the closed-form branches of all the
+        targets come first, and a target none of whose branches lies within the joint limits fails without
+        any descent (the same outcome: the branches are every solution there is). For a batch of targets
+        far from the current configuration, most of them unreachable (the grasp planner's first check of
+        its candidates), that saves their failing descents; for one target near it the descent is cheaper.
         """
         T = np.asarray(T_targets, dtype=np.float64).reshape(-1, 4, 4)
         n, J = len(T), self.robot.nq_arm
@@ -232,7 +239,13 @@ class IKSolver:
         far = dist > self.reach * 1.03 + 0.01
         seeds_of: list[list[np.ndarray]] = [[qc[i]] for i in range(n)]  # per target, its starts in order
         runs: list[list[tuple]] = [[] for _ in range(n)]  # per target: (q, ep, er, iterations) per seed tried
-        why: list[str] = []  # per target, when not empty: why no further seed was tried
+        why: list[str] = [""] * n  # per target, when not empty: why no (further) seed was tried
+        known = {}  # target -> its closed-form branches, when already computed
+        if screen and self.chain is not None and not position_only and seeds is None:
+            known = self._branches([i for i in range(n) if not far[i]], T, qc)
+            for i, (_, excess) in known.items():
+                if not (excess == 0).any():
+                    far[i], why[i] = True, _no_branch_message(excess)
         self._run_lanes([(i, 0) for i in range(n) if not far[i]], seeds_of, runs, T, position_only, n_solutions)
         more = [i for i in range(n) if not far[i] and max_seeds > 1 and self._n_sols(runs[i]) < n_solutions]
         if more and seeds is not None:
@@ -242,7 +255,7 @@ class IKSolver:
             self._run_lanes([(i, k) for i in more for k in range(1, len(seeds_of[i]))], seeds_of, runs, T,
                             position_only, n_solutions)
         elif more and self.chain is not None and not position_only:
-            why = self._closed_form_lanes(more, T, qc, seeds_of, runs, n_solutions, max_seeds)
+            self._closed_form_lanes(more, T, qc, seeds_of, runs, n_solutions, max_seeds, why, known)
         elif more:
             p = T[more, :3, 3]
             if position_only:
@@ -267,6 +280,9 @@ class IKSolver:
         target's message."""
         out, J = [], self.robot.nq_arm
         for i in range(len(T)):
+            if far[i] and why[i]:  # screened out by the closed form
+                out.append(IKResult(False, None, np.zeros((0, J)), np.inf, np.inf, 0, 0, why[i]))
+                continue
             if far[i]:
                 p = T[i, :3, 3]
                 out.append(IKResult(False, None, np.zeros((0, J)), np.inf, np.inf, 0, 0,
@@ -274,36 +290,37 @@ class IKSolver:
                                     f"the arm reaches about {self.reach:.3f} m"))
                 continue
             res = self._collect(runs[i], qc[i], n_solutions)
-            if not res.success and why and why[i]:
+            if not res.success and why[i]:
                 res.message = why[i]
             out.append(res)
         return out
 
+    def _branches(self, todo: list[int], T: np.ndarray, qc: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """Target -> its closed-form branches (Q (8, J), excess (8,); ``_analytic.ik_branches``), for ``todo``."""
+        if not todo:
+            return {}
+        Q, excess = ik_branches(self.chain, T[todo], qc[todo])
+        return {i: (Q[r], excess[r]) for r, i in enumerate(todo)}
+
     def _closed_form_lanes(self, todo: list[int], T: np.ndarray, qc: np.ndarray, seeds_of: list, runs: list,
-                           n_solutions: int, max_seeds: int) -> list[str]:
+                           n_solutions: int, max_seeds: int, why: list[str], known: dict) -> None:
         """Polish the closed-form branches (``_analytic``) of the targets ``todo`` (their seeds after the current
         configuration): those within the joint limits, nearest to the current configuration first, at most
-        ``max_seeds - 1``, all together by the DLS iteration. Returns, per target, why none was tried ('' where
-        some was): the branches are all the solutions there are, so such a target fails without more seeds."""
-        why, lanes = [""] * len(T), []
-        if not todo:
-            return why
-        Q, excess = ik_branches(self.chain, T[todo], qc[todo])
-        ok = excess == 0
-        order = np.argsort(np.where(ok, np.linalg.norm(Q - qc[todo][:, None], axis=2), np.inf), axis=1,
-                           kind="stable")
-        for r, i in enumerate(todo):
-            branches = [Q[r, b] for b in order[r, :max_seeds - 1] if ok[r, b]]
-            lanes += [(i, len(seeds_of[i]) + k) for k in range(len(branches))]
-            seeds_of[i] = seeds_of[i] + branches
-            if branches:
-                continue
-            if np.isfinite(excess[r]).any():
-                why[i] = "no IK solution within the joint limits: every closed-form branch leaves them"
-            else:
-                why[i] = "no IK solution: the target's wrist centre is beyond the arm's reach"
+        ``max_seeds - 1``, all together by the DLS iteration. Sets ``why[i]`` for a target none was tried for:
+        the branches are all the solutions there are, so such a target fails without more seeds. ``known``:
+        branches already computed (by target)."""
+        branches = {**known, **self._branches([i for i in todo if i not in known], T, qc)}
+        lanes = []
+        for i in todo:
+            Q, excess = branches[i]
+            ok = excess == 0
+            order = np.argsort(np.where(ok, np.linalg.norm(Q - qc[i], axis=1), np.inf), kind="stable")
+            starts = [Q[b] for b in order[:max_seeds - 1] if ok[b]]
+            lanes += [(i, len(seeds_of[i]) + k) for k in range(len(starts))]
+            seeds_of[i] = seeds_of[i] + starts
+            if not starts:
+                why[i] = _no_branch_message(excess)
         self._run_lanes(lanes, seeds_of, runs, T, False, n_solutions)
-        return why
 
     def _n_sols(self, runs: list[tuple]) -> int:
         """Distinct solutions among a target's seed outcomes."""
@@ -401,3 +418,10 @@ def _seed_table(robot, link: str, size: int, opening: float, seed: int, rot_weig
         reach = float(np.max(np.linalg.norm(pos - shoulder, axis=1)))
         per_robot[key] = (table_q, pos, pose_tree, cKDTree(pos), shoulder, reach)
     return per_robot[key]
+
+
+def _no_branch_message(excess: np.ndarray) -> str:
+    """Why a target whose closed-form branches have ``excess`` (8,) (``_analytic.ik_branches``) has no solution."""
+    if np.isfinite(excess).any():
+        return "no IK solution within the joint limits: every closed-form branch leaves them"
+    return "no IK solution: the target's wrist centre is beyond the arm's reach"
