@@ -348,11 +348,12 @@ def _push_in(P: np.ndarray, R: np.ndarray, C: np.ndarray, gripper: GripperModel,
         region_any[idx] = True
         if len(idx) == 0:
             continue
-        # the swept fingers and palm against the object's own points (a fine octree: at most its resolution
-        # of inflation, less than the least clearance) ...
-        free = ~collider.collides(own, T, w, swept=True)
-        # ... and against the rest of the scene (table, neighbours), with a margin
-        free[free] = ~collider.collides(others, T[free], w[free], swept=True, margin=params.scene_margin)
+        # the swept fingers and palm against the rest of the scene (table, neighbours), with a margin (most
+        # candidates that fail, fail here: asked first) ...
+        free = ~collider.collides(others, T, w, swept=True, margin=params.scene_margin)
+        # ... and against the object's own points (a fine octree: at most its resolution of inflation, less
+        # than the least clearance)
+        free[free] = ~collider.collides(own, T[free], w[free], swept=True)
         good = idx[free]
         chosen[good] = k
         T_best[good] = T[free]
