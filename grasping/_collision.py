@@ -39,15 +39,14 @@ class SceneOctree:
     GRID_CELL = 0.01  # m, the broad phase's cells (coarser for scenes so large that the grid would pass MAX_CELLS)
     MAX_CELLS = 2_000_000
 
-    def maybe_near(self, centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
-        """(M,) bool: some point may lie within the boxes of half-sizes ``radii`` (M,) (cubes) or (M, 3) (per
-        axis) around ``centres`` (M, 3); False only where none does.
+    def maybe_near(self, centres: np.ndarray, halves: np.ndarray) -> np.ndarray:
+        """(M,) bool: some point may lie within the world-axis boxes of half-sizes ``halves`` (M, 3) around
+        ``centres`` (M, 3); False only where none does.
 
         A dense grid of occupied cells with 3D prefix sums counts the occupied cells a query box touches in
         constant time (vectorised over the queries): a cheap broad phase before coal's octree."""
         c = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
-        r = np.asarray(radii, dtype=np.float64)
-        r = r.reshape(-1, 3) if r.ndim == 2 else r.reshape(-1, 1)
+        r = np.asarray(halves, dtype=np.float64).reshape(-1, 3)
         if not len(self.points):
             return np.zeros(len(c), dtype=bool)
         if self._counts is None:
@@ -183,16 +182,6 @@ class GripperCollider:
         return out
 
 
-def _world_boxes(collider: GripperCollider, T: np.ndarray, swept: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Centres (N, S, 3) and half-sizes (N, S, 3) of the world-axis boxes around each shape's box (swept or
-    not) placed at ``T`` (N, S, 4, 4): a thin finger tilted 45 degrees spans half the cube of its sphere."""
-    boxes = collider.swept_local_aabbs if swept else collider.local_aabbs  # (S, 2, 3)
-    c_loc = 0.5 * (boxes[:, 0] + boxes[:, 1])
-    h_loc = 0.5 * (boxes[:, 1] - boxes[:, 0])
-    R = T[..., :3, :3]
-    return np.einsum("nsij,sj->nsi", R, c_loc) + T[..., :3, 3], np.einsum("nsij,sj->nsi", np.abs(R), h_loc)
-
-
 def _oriented_boxes(collider: GripperCollider, T: np.ndarray, swept: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Centres (N, S, 3), axes (N, S, 3, 3) (columns) and half-sizes (S, 3) of each shape's box (swept or not)
     placed at ``T`` (N, S, 4, 4)."""
@@ -200,6 +189,13 @@ def _oriented_boxes(collider: GripperCollider, T: np.ndarray, swept: bool) -> tu
     c_loc = 0.5 * (boxes[:, 0] + boxes[:, 1])
     return (np.einsum("nsij,sj->nsi", T[..., :3, :3], c_loc) + T[..., :3, 3], T[..., :3, :3],
             0.5 * (boxes[:, 1] - boxes[:, 0]))
+
+
+def _world_boxes(collider: GripperCollider, T: np.ndarray, swept: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Centres (N, S, 3) and half-sizes (N, S, 3) of the world-axis boxes around each shape's box (swept or
+    not) placed at ``T`` (N, S, 4, 4): a thin finger tilted 45 degrees spans half the cube of its sphere."""
+    c, R, h = _oriented_boxes(collider, T, swept)
+    return c, np.einsum("nsij,sj->nsi", np.abs(R), h)
 
 
 def obb_overlap(c1: np.ndarray, R1: np.ndarray, h1: np.ndarray, c2: np.ndarray, R2: np.ndarray,
@@ -223,28 +219,23 @@ def obb_overlap(c1: np.ndarray, R1: np.ndarray, h1: np.ndarray, c2: np.ndarray, 
     return ~sep
 
 
-def _bounding_spheres(collider: GripperCollider, T: np.ndarray, swept: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Centres (N, S, 3) and radii (S,) of spheres around each shape (swept or not) placed at ``T`` (N, S, 4, 4)."""
-    boxes = collider.swept_local_aabbs if swept else collider.local_aabbs  # (S, 2, 3)
-    c_loc = 0.5 * (boxes[:, 0] + boxes[:, 1])
-    r = 0.5 * np.linalg.norm(boxes[:, 1] - boxes[:, 0], axis=1)
-    return np.einsum("nsij,sj->nsi", T[..., :3, :3], c_loc) + T[..., :3, 3], r
-
-
 class PlacedGrippers(NamedTuple):
-    """K grippers placed for ``grippers_collide_many`` (``place_grippers``): every shape's pose (K, S, 4, 4), its
-    bounding sphere's centre (K, S, 3) and radius (S,), its box's centre (K, S, 3) and half-sizes (S, 3)."""
+    """K grippers placed for ``grippers_collide_many`` (``place_grippers``): every shape's pose (K, S, 4, 4) and
+    its box's centre (K, S, 3) and half-sizes (S, 3); the box's circumscribed sphere is the first broad phase."""
 
     T: np.ndarray
-    sphere_c: np.ndarray
-    sphere_r: np.ndarray
     box_c: np.ndarray
     box_h: np.ndarray
     swept: bool
 
+    @property
+    def radius(self) -> np.ndarray:
+        """(S,) each shape's bounding-sphere radius: its box's half diagonal."""
+        return np.linalg.norm(self.box_h, axis=1)
+
     def take(self, idx) -> PlacedGrippers:
         """The grippers ``idx`` of these."""
-        return PlacedGrippers(self.T[idx], self.sphere_c[idx], self.sphere_r, self.box_c[idx], self.box_h, self.swept)
+        return PlacedGrippers(self.T[idx], self.box_c[idx], self.box_h, self.swept)
 
 
 def place_grippers(collider: GripperCollider, T_b_g: np.ndarray, w: np.ndarray, swept: bool = False) -> PlacedGrippers:
@@ -252,9 +243,8 @@ def place_grippers(collider: GripperCollider, T_b_g: np.ndarray, w: np.ndarray, 
     once for many ``grippers_collide_many`` calls against them."""
     T_b_g = np.asarray(T_b_g, dtype=np.float64).reshape(-1, 4, 4)
     T = collider._placements(T_b_g, np.broadcast_to(np.asarray(w, dtype=np.float64), (len(T_b_g),)), swept)
-    c, r = _bounding_spheres(collider, T, swept)
     box_c, _, box_h = _oriented_boxes(collider, T, swept)
-    return PlacedGrippers(T, c, r, box_c, box_h, swept)
+    return PlacedGrippers(T, box_c, box_h, swept)
 
 
 def grippers_collide_many(collider: GripperCollider, T_b_g1: np.ndarray, w1: float, T_b_g2: np.ndarray | None,
@@ -271,24 +261,22 @@ def grippers_collide_many(collider: GripperCollider, T_b_g1: np.ndarray, w1: flo
     B = placed2 if placed2 is not None else place_grippers(collider, T_b_g2, w2, swept2)
     swept2 = B.swept
     K = len(B.T)
-    A = collider._placements(np.asarray(T_b_g1, dtype=np.float64)[None], np.array([float(w1)]), swept1)[0]  # (S, 4, 4)
-    ca, ra = _bounding_spheres(collider, A[None], swept1)
-    gap = (np.linalg.norm(B.sphere_c[:, None, :, :] - ca[0][None, :, None, :], axis=-1) - ra[None, :, None]
-           - B.sphere_r[None, None, :])
+    A = place_grippers(collider, np.asarray(T_b_g1, dtype=np.float64)[None], np.array([float(w1)]), swept1)
+    gap = (np.linalg.norm(B.box_c[:, None, :, :] - A.box_c[0][None, :, None, :], axis=-1) - A.radius[None, :, None]
+           - B.radius[None, None, :])
     near = gap <= margin + 1e-9  # (K, Sa, Sb): pairs the exact test must see
     hit = np.zeros(K, dtype=bool)
     if not near.any():
         return hit
     # then the shapes' oriented boxes (A's grown by the margin), on the pairs whose spheres came near
     k, a, b = np.nonzero(near)
-    box_a = _oriented_boxes(collider, A[None], swept1)
-    near[k, a, b] = obb_overlap(box_a[0][0, a], box_a[1][0, a], box_a[2][a] + margin + 1e-9,
+    near[k, a, b] = obb_overlap(A.box_c[0, a], A.T[0, a, :3, :3], A.box_h[a] + margin + 1e-9,
                                 B.box_c[k, b], B.T[k, b, :3, :3], B.box_h[b])
     if not near.any():
         return hit
     ga = [g for g, _ in collider.swept] if swept1 else [s.geometry for s in collider.gripper.shapes]
     gb = [g for g, _ in collider.swept] if swept2 else [s.geometry for s in collider.gripper.shapes]
-    ta = [coal.Transform3s(Ta[:3, :3], Ta[:3, 3]) for Ta in A]
+    ta = [coal.Transform3s(Ta[:3, :3], Ta[:3, 3]) for Ta in A.T[0]]
     req, res = coal.CollisionRequest(), coal.CollisionResult()
     req.security_margin = float(margin)
     for k, a, b in zip(*np.nonzero(near)):
