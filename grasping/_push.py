@@ -241,8 +241,9 @@ def _pads(geo: ObjectGeometry, face: _Face, tips: list[np.ndarray], R: np.ndarra
     C = len(R)
     landed, seen, align, inside = np.zeros(C, int), np.zeros(C, int), np.ones(C), np.ones(C, bool)
     normals: dict[bytes, float] = {}  # |cos| of a pad's plane, by the face points it rests on (poses share them)
+    Rt = np.swapaxes(R, 1, 2)
     for tc in tips:
-        tw = tc @ np.swapaxes(R, 1, 2) + (o - geo.centre)[:, None]  # (C, 4, 3) the tip's corners
+        tw = tc @ Rt + o[:, None] - geo.centre  # (C, 4, 3) the tip's corners, from the box centre
         pl, ph = tw @ face.t, tw @ up
         lo_l, hi_l = pl.min(axis=1) - 0.002, pl.max(axis=1) + 0.002
         lo_h, hi_h = ph.min(axis=1) - 0.002, ph.max(axis=1) + 0.002
@@ -282,10 +283,10 @@ def _face_rows(geo: ObjectGeometry, support: Support, face: _Face, tips: list[np
     # fingertips on the face: shifted along the normal so that the deepest tip corner touches it
     depth_c = [(tc @ Rt) @ -n for tc in tips]  # (F, 4) per tip
     pen = np.max([dc.max(axis=1) for dc in depth_c], axis=0)
-    touching = [tc[None] * (dc >= dc.max(axis=1, keepdims=True) - 1e-6)[..., None] for tc, dc in zip(tips, depth_c)]
-    n_touch = sum((dc >= dc.max(axis=1, keepdims=True) - 1e-6).sum(axis=1) for dc in depth_c)
-    touch = sum(t.sum(axis=1) for t in touching) / n_touch[:, None]  # (F, 3) the touching corners' mean, in g
-    lowest = (all_corners @ Rt) @ up  # (F, corners): the gripper's corners' height, from o
+    deepest = [dc >= dc.max(axis=1, keepdims=True) - 1e-6 for dc in depth_c]  # (F, 4) per tip: its touching corners
+    touch = (sum((tc[None] * m[..., None]).sum(axis=1) for tc, m in zip(tips, deepest))
+             / sum(m.sum(axis=1) for m in deepest)[:, None])  # (F, 3) the touching corners' mean, in g
+    corners = all_corners @ Rt  # (F, corners, 3) the gripper's corners, from o
     rows = []
     for hf in params.heights:
         c = geo.centre + face.offset * n + hf * 0.5 * ext[2] * up
@@ -297,7 +298,7 @@ def _face_rows(geo: ObjectGeometry, support: Support, face: _Face, tips: list[np
         st["unseen"] += int((inside & (landed < len(tips))).sum())
         st["outside_cone"] += int((inside & (landed >= len(tips)) & (align < cone_cos)).sum())
         # the whole gripper above the table by the margin
-        low = ~bad & ((lowest + (o @ up)[:, None]).min(axis=1) - support.height < params.scene_margin + 0.002)
+        low = ~bad & (support.elevation(corners + o[:, None]).min(axis=1) < params.scene_margin + 0.002)
         st["near_table"] += int(low.sum())
         for f in np.nonzero(~bad & ~low)[0]:
             T = np.eye(4)
