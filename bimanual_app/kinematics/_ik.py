@@ -245,9 +245,10 @@ class IKSolver:
             known = self._branches([i for i in range(n) if not far[i]], T, qc)
             for i, (_, excess) in known.items():
                 if not (excess == 0).any():
-                    far[i], why[i] = True, _no_branch_message(excess)
-        self._run_lanes([(i, 0) for i in range(n) if not far[i]], seeds_of, runs, T, position_only, n_solutions)
-        more = [i for i in range(n) if not far[i] and max_seeds > 1 and self._n_sols(runs[i]) < n_solutions]
+                    why[i] = _no_branch_message(excess)  # no seed at all: failed with this message
+        live = [i for i in range(n) if not far[i] and not why[i]]
+        self._run_lanes([(i, 0) for i in live], seeds_of, runs, T, position_only, n_solutions)
+        more = [i for i in live if max_seeds > 1 and self._n_sols(runs[i]) < n_solutions]
         if more and seeds is not None:
             given = list(np.clip(seeds, self.lower, self.upper)[:max_seeds - 1])
             for i in more:
@@ -280,9 +281,6 @@ class IKSolver:
         target's message."""
         out, J = [], self.robot.nq_arm
         for i in range(len(T)):
-            if far[i] and why[i]:  # screened out by the closed form
-                out.append(IKResult(False, None, np.zeros((0, J)), np.inf, np.inf, 0, 0, why[i]))
-                continue
             if far[i]:
                 p = T[i, :3, 3]
                 out.append(IKResult(False, None, np.zeros((0, J)), np.inf, np.inf, 0, 0,
