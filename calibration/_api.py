@@ -143,7 +143,7 @@ def _refine_with_point_maps(scene, result: CalibrationResult, options: Calibrati
     t0 = time.perf_counter()
     rec = scene.reconstruction
     rows, arms, E = _views_of(scene, result)
-    views = _map_views(scene, result, rows, arms, E)
+    views = _map_views(scene, result, rows, arms, E, normals="next pixels")  # as it was built and tuned
     before = {"T_e1_c1": result.T_e1_c1, "T_e2_c2": result.T_e2_c2, "scale": result.scale,
               "T_b1_b2": result.T_b1_b2, "T_b1_w": result.T_b1_w, "T_b2_w": result.T_b2_w,
               "residuals": result.residuals}
@@ -253,8 +253,9 @@ def _estimate_jointly(scene, result: CalibrationResult, options: CalibrationOpti
     return report
 
 
-def _map_views(scene, result, rows, arms, E) -> list:
-    """The used views' point maps in their camera frames: confident pixels, not the arm's own rig."""
+def _map_views(scene, result, rows, arms, E, normals: str = "window") -> list:
+    """The used views' point maps in their camera frames: confident pixels, not the arm's own rig (``normals``:
+    see ``camera_frame_views``)."""
     from ._cloud import auto_conf_threshold
     from ._pointmaps import camera_frame_views
 
@@ -265,7 +266,7 @@ def _map_views(scene, result, rows, arms, E) -> list:
         keep &= (conf > auto_conf_threshold(rec.conf)) & (conf > 0)
     for arm in scene.arms:  # each arm's own fingers move with the camera: not scene points
         keep[arms == arm.index] &= ~_rig_pixels(scene, result, arm)[None]
-    return camera_frame_views(rec.pts3d[rows], rec.T_w_c[rows], keep, arms, E)
+    return camera_frame_views(rec.pts3d[rows], rec.T_w_c[rows], keep, arms, E, normals)
 
 
 def _fit_report(scene, fit, rows, views) -> dict:

@@ -34,10 +34,14 @@ from bimanual_app.transforms import check_shape, make_T, so3_exp
 
 from ._fusion import pointmap_intrinsics
 
-__all__ = ["PointMapView", "camera_frame_views", "grid_normals", "find_pairs", "MapPairs", "map_residuals",
+__all__ = ["PointMapView", "camera_frame_views", "grid_normals", "next_pixel_normals", "find_pairs", "MapPairs", "map_residuals",
            "map_jacobian", "view_camera_poses", "unpack_corrections"]
 
 PARTNERS_PER_ARM = 6  # each view is matched with the 6 nearest cameras of each arm (see _partner_views)
+#: normals: the plane of NORMAL_SAMPLES x NORMAL_SAMPLES grid points about +-NORMAL_WINDOW_RAD of view angle
+#: wide (grid_normals)
+NORMAL_SAMPLES = 7
+NORMAL_WINDOW_RAD = 0.03
 MIN_NORMAL_COS = 0.8  # partners whose normals differ more (about 37 deg) are on different surfaces
 
 
@@ -68,9 +72,54 @@ class PointMapView:
         return self.index is not None and self.intrinsics is not None and bool(np.all(np.isfinite(self.intrinsics)))
 
 
-def grid_normals(points_c: np.ndarray) -> np.ndarray:
-    """(H, W, 3) unit normals of an organised point map (H, W, 3) from its grid neighbours (central
-    differences), oriented towards the camera; NaN where a neighbour is missing or at the border."""
+def grid_normals(points_c: np.ndarray, focal_px: float | None = None) -> np.ndarray:
+    """(H, W, 3) unit normals of an organised point map (H, W, 3), oriented towards the camera; NaN where the
+    window is not whole (a missing point, the border).
+
+    Each normal is that of the plane fitted to a window of NORMAL_SAMPLES x NORMAL_SAMPLES grid points about
+    +-NORMAL_WINDOW_RAD of view angle wide (grid step ``focal_px * NORMAL_WINDOW_RAD / (NORMAL_SAMPLES // 2)``
+    pixels, at least 1; 1 without ``focal_px``): the derivatives along the rows and columns are the
+    least-squares slopes over the window, the normal their cross product. From the next pixels alone, a
+    model's 0.5 % depth noise tilts normals by 10-20 deg; on a table their spurious sideways parts pin
+    point-to-plane pairs to their current partners, so the joint estimate creeps and its covariance takes
+    that pinning for evidence (docs/calibration.md, "Normals").
+
+    OpenCV's filters rather than a nearest-neighbour normal estimator (Open3D): the grid gives every window
+    for free, and all windows of 16 maps cost a few milliseconds.
+    """
+    import cv2
+
+    P = check_shape("points_c", np.asarray(points_c, dtype=np.float64), (None, None, 3))
+    half = NORMAL_SAMPLES // 2
+    step = max(1, int(round(focal_px * NORMAL_WINDOW_RAD / half))) if focal_px and np.isfinite(focal_px) else 1
+    offs = np.arange(-half, half + 1, dtype=np.float64)
+    size = 2 * half * step + 1
+    ones, ku, kv = np.zeros((size, size)), np.zeros((size, size)), np.zeros((size, size))
+    ones[::step, ::step] = 1.0
+    ku[::step, ::step] = offs[None, :]  # column offset: correlation gives sum over the window of u p(u, v)
+    kv[::step, ::step] = offs[:, None]
+    ok = _finite3(P) & (np.nan_to_num(P[..., 2], nan=-1.0) > 0)
+    Pz = np.where(ok[..., None], P, 0.0)
+
+    def window_sum(a: np.ndarray, k: np.ndarray) -> np.ndarray:
+        return cv2.filter2D(a, cv2.CV_64F, k, borderType=cv2.BORDER_CONSTANT)
+
+    whole = ok & (window_sum(ok.astype(np.float64), ones) > NORMAL_SAMPLES ** 2 - 0.5)
+    du = np.stack([window_sum(Pz[..., i], ku) for i in range(3)], -1)
+    dv = np.stack([window_sum(Pz[..., i], kv) for i in range(3)], -1)
+    n = _cross(du.reshape(-1, 3), dv.reshape(-1, 3)).reshape(P.shape)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        n = n / np.sqrt(_dot3(n, n))[..., None]
+        n = -n * np.sign(_dot3(n, P))[..., None]
+    n[~whole] = np.nan
+    return n
+
+
+def next_pixel_normals(points_c: np.ndarray) -> np.ndarray:
+    """(H, W, 3) unit normals of an organised point map (H, W, 3) from its next grid neighbours (central
+    differences), oriented towards the camera; NaN where a neighbour is missing or at the border. What the
+    previous point-map estimator (``estimator="refine"``) was built and tuned with; the joint estimate
+    uses :func:`grid_normals`."""
     P = check_shape("points_c", np.asarray(points_c, dtype=np.float64), (None, None, 3))
     dx = np.full_like(P, np.nan)
     dy = np.full_like(P, np.nan)
@@ -95,14 +144,17 @@ def _finite3(a: np.ndarray) -> np.ndarray:
 
 
 def camera_frame_views(pts3d_w: np.ndarray, T_w_c: np.ndarray, keep: np.ndarray, arms: np.ndarray,
-                       T_b_e: np.ndarray) -> list[PointMapView]:
+                       T_b_e: np.ndarray, normals: str = "window") -> list[PointMapView]:
     """The views of a reconstruction in their camera frames.
 
     Args:
         pts3d_w: (V, H, W, 3) point maps in the reconstruction frame; T_w_c: (V, 4, 4) their poses.
         keep: (V, H, W) bool, the pixels to use (confident, not the robot's own rig).
         arms: (V,) 1 or 2; T_b_e: (V, 4, 4) each view's end-effector pose in its arm's base.
+        normals: "window" (:func:`grid_normals`) or "next pixels" (:func:`next_pixel_normals`).
     """
+    if normals not in ("window", "next pixels"):
+        raise ValueError(f"normals must be 'window' or 'next pixels', got {normals!r}")
     P = check_shape("pts3d", np.asarray(pts3d_w), (None, None, None, 3))
     V = len(P)
     T = check_shape("T_w_c", np.asarray(T_w_c, dtype=np.float64), (V, 4, 4))
@@ -111,14 +163,13 @@ def camera_frame_views(pts3d_w: np.ndarray, T_w_c: np.ndarray, keep: np.ndarray,
     out = []
     for v in range(V):
         Pc = (P[v].astype(np.float64) - T[v, :3, 3]) @ T[v, :3, :3]
-        N = grid_normals(Pc)
-        finite = _finite3(Pc)
-        with np.errstate(invalid="ignore"):
-            ok = keep[v] & finite & _finite3(N) & (Pc[..., 2] > 0)
+        finite = _finite3(Pc) & (np.nan_to_num(Pc[..., 2], nan=-1.0) > 0)
+        K = pointmap_intrinsics(Pc, finite)
+        N = grid_normals(Pc, 0.5 * float(K[0] + K[1])) if normals == "window" else next_pixel_normals(Pc)
+        ok = keep[v] & finite & _finite3(N)
         index = np.full(ok.shape, -1, dtype=np.int64)
         index[ok] = np.arange(int(ok.sum()))
-        finite &= np.nan_to_num(Pc[..., 2], nan=-1.0) > 0
-        out.append(PointMapView(int(arms[v]), E[v], Pc[ok], N[ok], index, pointmap_intrinsics(Pc, finite)))
+        out.append(PointMapView(int(arms[v]), E[v], Pc[ok], N[ok], index, K))
     return out
 
 
