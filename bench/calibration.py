@@ -660,10 +660,8 @@ def point_map_lines(scenes: list[Path], pm_rows: list[dict]) -> list[str]:
     L += ["", "Default outputs, error / reported 1-sigma (the joint estimate's covariance: delete-one-view jackknife "
           "plus the depth prior's share): RMS over the scenes (both arms for the hand-eyes).", "",
           "| output | RMS(error/sigma) |", "| --- | --- |"]
-    for k in pm_rows[0]["refined"]["z"]:
-        v = np.concatenate([row["refined"]["z"][k] for row in pm_rows])
-        L.append(f"| {k} | {np.sqrt(np.mean(np.square(v))):.2f} |")
-    L.append(f"| all outputs | {_z_rms([row['refined'] for row in pm_rows])[0]:.2f} |")
+    z_all, per = _z_rms([row["refined"] for row in pm_rows])
+    L += [f"| {k} | {v:.2f} |" for k, v in per.items()] + [f"| all outputs | {z_all:.2f} |"]
     return L
 
 
