@@ -1,5 +1,6 @@
-"""Hand-over: the primary (giver) carries the object to a transfer pose both arms reach, the secondary
-(receiver) grasps it there, and the giver lets go.
+"""Hand-over: the giver (the primary, or the secondary where the primary reaches no pick: ``giver_arm``)
+carries the object to a transfer pose both arms reach, the other arm (the receiver) grasps it there, and the
+giver lets go. Below, "primary" and "secondary" stand for giver and receiver.
 
 A transfer pose puts the object's centre above the line between the two bases (at ``heights`` above the
 table, at least ``min_rise`` above where it lies, shifted sideways by ``offsets``), turned so that the
@@ -80,7 +81,7 @@ class HandoverParams:
         need to clear the object (a contact at most 4.25 cm behind the fingertips, plus the object's near
         half); the pick's longer pre-grasp (9 cm) would pull the wrist back towards the secondary's base,
         which the Piper cannot follow at a transfer pose between two bases 50-70 cm apart.
-    givers: giver grasps tried: the primary's reachable pick grasps that leave the most clear receiver grasps
+    givers: giver grasps tried: the giver's reachable pick grasps that leave the most clear receiver grasps
         (counted up to ``enough_clear``, then the best-scored: a shallow grasp at the object's very end
         leaves the most room but holds least well); giver_tries: pick grasps sent to its reach filter.
     receivers_checked: receiver grasps sent to the reach filter
@@ -153,7 +154,7 @@ class Handover:
 
     T_move: (4, 4) rigid motion taking the object from where it lies to the transfer pose.
     centre: (3,) the object's centre at the transfer pose.
-    giver_index: index of the giver's grasp in ``givers`` (the primary's reachable pick grasps chosen for
+    giver_index: index of the giver's grasp in ``givers`` (the giver's reachable pick grasps chosen for
         the hand-over).
     giver_T_b1_g: (4, 4) giver's gripper at the transfer pose; giver_q: (J,) its joints there.
     giver_width: the giver's closed width (the object's contact width).
@@ -180,8 +181,41 @@ class Handover:
     catch: float = 1.0
     margin: float = 0.0
     sigma: float = 0.0
-    givers: ArmGrasps | None = None  # the giver candidates ``giver_index`` indexes (None: the primary's reach set)
+    givers: ArmGrasps | None = None  # the giver candidates ``giver_index`` indexes (None: the giver's reach set)
     giver_release_width: float = 0.0  # the giver's opening when it lets go (m; :func:`release_width`)
+    giver_arm: str = "primary"  # the arm that picks and gives ("primary" or "secondary"); the other receives
+
+    @property
+    def receiver_arm(self) -> str:
+        return "secondary" if self.giver_arm == "primary" else "primary"
+
+
+ARM_NAMES = ("primary", "secondary")
+
+
+@dataclass
+class _Roles:
+    """The two arms of one hand-over by role: ``giver`` picks and gives, ``receiver`` takes it over.
+    ``T_b1_b2`` (4, 4): the secondary's base, whichever arm gives (the calibration error is the error of that
+    transform). ``check(q_giver, w_giver, q_receiver, w_receiver)``: the arm-against-arm check, or None."""
+
+    giver: Arm
+    receiver: Arm
+    T_b1_b2: np.ndarray
+    check: object = None
+
+
+def _roles(arms: dict[str, Arm], giver: str, check: TwoArmCheck | None) -> _Roles:
+    """``arms`` (by name) as the roles of a hand-over from ``giver``; ``check`` takes (primary, secondary)
+    configurations, so a hand-over from the secondary swaps its arguments."""
+    if giver not in ARM_NAMES:
+        raise ValueError(f"giver must be one of {ARM_NAMES}, not {giver!r}")
+    receiver = ARM_NAMES[1 - ARM_NAMES.index(giver)]
+    swapped = None
+    if check is not None and giver == "secondary":
+        def swapped(q_g, w_g, q_r, w_r):
+            return check(q_r, w_r, q_g, w_g)
+    return _Roles(arms[giver], arms[receiver], arms["secondary"].T_b1_b, swapped or check)
 
 
 def release_width(width: np.ndarray, contact_width: np.ndarray, params: HandoverParams) -> np.ndarray:
@@ -232,32 +266,33 @@ def _align(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return _axis_angle(v / s, float(np.arctan2(s, c)))
 
 
-def _transfer_targets(geo: ObjectGeometry, support: Support, T_b1_b2: np.ndarray, p: HandoverParams
+def _transfer_targets(geo: ObjectGeometry, support: Support, roles: _Roles, p: HandoverParams
                       ) -> tuple[np.ndarray, np.ndarray]:
     """(K, 3) the object centre's places at the transfer poses, in order of preference, and (3,) the unit
-    direction from the primary's base to the secondary's (horizontal)."""
+    direction from the giver's base to the receiver's (horizontal)."""
     up = support.up
-    o2 = T_b1_b2[:3, 3]
-    base_line = o2 - (o2 @ up) * up
+    o_g, o_r = roles.giver.T_b1_b[:3, 3], roles.receiver.T_b1_b[:3, 3]
+    start = o_g - (o_g @ up) * up  # the giver's base, horizontally (b1's origin for the primary)
+    base_line = (o_r - o_g) - ((o_r - o_g) @ up) * up
     line = base_line / max(np.linalg.norm(base_line), 1e-9)
     across = np.cross(up, line)
     floor = support.height * up  # the table plane below b1's origin
     lowest = float(geo.centre @ up - support.height) + p.min_rise  # the centre's height above the table
     heights = [h for h in p.heights if h >= lowest] or [lowest]
-    targets = [f * base_line + floor + h * up + off * across for h in heights for f in p.fractions for off in p.offsets]
+    targets = [start + f * base_line + floor + h * up + off * across for h in heights for f in p.fractions for off in p.offsets]
     # and towards where the object lies (raised): near the edge of both reaches, the place both arms reach
     # may be nearer the object than the line between the bases
     here = geo.centre - (geo.centre @ up) * up
-    mid = 0.5 * base_line
+    mid = start + 0.5 * base_line
     targets += [(1 - f) * mid + f * here + floor + h * up for h in heights for f in p.towards_object]
     return np.array(targets).reshape(-1, 3), line
 
 
-def _transfer_moves(geo: ObjectGeometry, support: Support, T_b1_b2: np.ndarray, G: np.ndarray,
+def _transfer_moves(geo: ObjectGeometry, support: Support, roles: _Roles, G: np.ndarray,
                     p: HandoverParams) -> list[np.ndarray]:
     """Rigid motions (4, 4) of the object, for the giver's pick grasp ``G`` (4, 4), in order of preference."""
     up = support.up
-    targets, line = _transfer_targets(geo, support, T_b1_b2, p)
+    targets, line = _transfer_targets(geo, support, roles, p)
     zg = G[:3, 2]
     moves = []
     for target in targets:
@@ -330,7 +365,7 @@ def _prior_min(arm: Arm, moves_b1: np.ndarray, T_b1_g: np.ndarray, cut: float) -
 
 def handover_givers(picks: GraspSet, free: GraspSet, reached: ArmGrasps, prim: Arm, collider: GripperCollider,
                     params: HandoverParams = HandoverParams()) -> tuple[ArmGrasps, list[np.ndarray]]:
-    """The primary's pick grasps to hand over from, and the free-space receiver grasps each leaves clear.
+    """The giver's (``prim``'s) pick grasps to hand over from, and the free-space receiver grasps each leaves clear.
 
     A centred, deep pick (what the single-arm ranking prefers) covers a small object with the giver's fingers
     and leaves the receiver nothing; so every collision-free pick grasp of ``picks`` is ranked by how many
@@ -368,16 +403,18 @@ def handover_givers(picks: GraspSet, free: GraspSet, reached: ArmGrasps, prim: A
 def plan_handover(geo: ObjectGeometry, support: Support, giver: ArmGrasps, free: GraspSet, arms: dict[str, Arm],
                   collider: GripperCollider, check: TwoArmCheck | None, params: HandoverParams = HandoverParams(),
                   clear: list[np.ndarray] | None = None, obstacles_b1: np.ndarray | None = None,
-                  object_points_b1: np.ndarray | None = None) -> tuple[Handover | None, dict]:
+                  object_points_b1: np.ndarray | None = None, giver_arm: str = "primary"
+                  ) -> tuple[Handover | None, dict]:
     """The first feasible hand-over (see the module docstring), or None; with counts of what was tried.
 
-    ``giver``: the primary's reachable pick grasps to try, best first (``handover_givers``); ``clear``: for
+    ``giver_arm``: the arm that picks and gives (``arms`` by name; the other one receives). ``giver``: its
+    reachable pick grasps to try, best first (``handover_givers``); ``clear``: for
     each, the indices of the ``free`` grasps it leaves clear (computed when not given). ``obstacles_b1``
     (M, 3): the rest of the scene; transfer poses where the object comes within ``object_clearance`` of it
     are skipped; ``object_points_b1`` (K, 3): the object's points for that check (default ``geo.points``; pass
     its closed geometry's, which include the unseen bottom)."""
     found, stats = plan_handovers(geo, support, giver, free, arms, collider, check, params, clear, obstacles_b1,
-                                  object_points_b1, n=1)
+                                  object_points_b1, n=1, giver_arm=giver_arm)
     return (found[0] if found else None), stats
 
 
@@ -397,7 +434,8 @@ def _distinct(h: Handover, found: list[Handover], min_shift: float = 0.04, min_t
 def plan_handovers(geo: ObjectGeometry, support: Support, giver: ArmGrasps, free: GraspSet, arms: dict[str, Arm],
                    collider: GripperCollider, check: TwoArmCheck | None, params: HandoverParams = HandoverParams(),
                    clear: list[np.ndarray] | None = None, obstacles_b1: np.ndarray | None = None,
-                   object_points_b1: np.ndarray | None = None, n: int | None = None) -> tuple[list[Handover], dict]:
+                   object_points_b1: np.ndarray | None = None, n: int | None = None, giver_arm: str = "primary"
+                   ) -> tuple[list[Handover], dict]:
     """Up to ``n`` (default ``params.alternatives``) feasible, mutually distinct hand-overs (:func:`_distinct`):
     the first the search finds (:func:`plan_handover`'s), then those with a giver grasp not used before, then
     the others, each group in the order found; with counts of what was tried.
@@ -409,13 +447,13 @@ def plan_handovers(geo: ObjectGeometry, support: Support, giver: ArmGrasps, free
     found: list[Handover] = []
     if len(giver) == 0 or len(free) == 0 or "secondary" not in arms or n < 1:
         return found, stats
+    roles = _roles(arms, giver_arm, check)
     # alternatives with another giver grasp first: a pick that does not hold the object fails every hand-over
     # that starts with it, whatever the transfer pose (while givers are left unused, the search goes on for
     # at most 2n distinct hand-overs)
     same: list[Handover] = []
     n_givers = min(params.givers, len(giver))
-    for h in _search(geo, support, giver, free, arms, collider, check, params, clear, obstacles_b1, object_points_b1,
-                     stats):
+    for h in _search(geo, support, giver, free, roles, collider, params, clear, obstacles_b1, object_points_b1, stats):
         if _distinct(h, found + same):
             h.tried = dict(stats)
             (found if all(f.giver_index != h.giver_index for f in found) else same).append(h)
@@ -425,7 +463,7 @@ def plan_handovers(geo: ObjectGeometry, support: Support, giver: ArmGrasps, free
     return (found + same)[:n], stats
 
 
-def _scene_clearance(geo: ObjectGeometry, support: Support, sec: Arm, params: HandoverParams, obstacles_b1,
+def _scene_clearance(geo: ObjectGeometry, support: Support, roles: _Roles, params: HandoverParams, obstacles_b1,
                      object_points_b1) -> tuple[PointClearance | None, np.ndarray | None]:
     """(the scene's clearance index over the transfer region, the object's points (<= ~300, 3) it is checked
     with), or (None, None) without obstacles."""
@@ -434,7 +472,7 @@ def _scene_clearance(geo: ObjectGeometry, support: Support, sec: Arm, params: Ha
     pts = geo.points if object_points_b1 is None else np.asarray(object_points_b1, dtype=np.float64).reshape(-1, 3)
     obj_pts = pts[:: max(1, len(pts) // 300)]
     # every transfer pose puts the object's centre on one of the targets: its points stay within its radius
-    targets, _ = _transfer_targets(geo, support, sec.T_b1_b, params)
+    targets, _ = _transfer_targets(geo, support, roles, params)
     radius = float(np.linalg.norm(obj_pts - geo.centre, axis=1).max()) if len(obj_pts) else 0.0
     return PointClearance(obstacles_b1, params.object_clearance,
                           (targets.min(axis=0) - radius, targets.max(axis=0) + radius)), obj_pts
@@ -448,7 +486,7 @@ def _cost_key(cost: float, pref: int) -> tuple[int, int]:
     return round(cost / 0.02), pref
 
 
-def _ranked_transfers(geo, support, giver, free, arms, collider, params, clear, scene_clear, obj_pts,
+def _ranked_transfers(geo, support, giver, free, roles, collider, params, clear, scene_clear, obj_pts,
                       stats) -> Iterator[tuple]:
     """(giver, move) candidates, cheaper predicted cost first (the giver's prior + the best clear receiver's;
     ties: order of preference): ``(cost, order of preference, giver index, move (4, 4), clear receivers)``.
@@ -457,7 +495,7 @@ def _ranked_transfers(geo, support, giver, free, arms, collider, params, clear, 
     then the receivers' ``prior_min``, the costly part) in order of that bound, ``RANK_CHUNK`` at a time, and
     a candidate is yielded once no pose left unscored can rank before it: the order of scoring them all
     first, for the candidates the search asks for. ``stats["object_in_scene"]`` counts the poses scored."""
-    prim = arms["primary"]
+    prim = roles.giver
     clear_of, scored, pending = {}, {}, []  # giver -> clear receivers; giver -> (moves, prior, receivers, first)
     n_pref = 0
     placed = _place_receivers(collider, free) if clear is None and len(free) else None
@@ -471,13 +509,13 @@ def _ranked_transfers(geo, support, giver, free, arms, collider, params, clear, 
         if not len(clear_g):
             continue
         clear_of[gi] = clear_g
-        moves = np.stack(_transfer_moves(geo, support, arms["secondary"].T_b1_b, G, params))
+        moves = np.stack(_transfer_moves(geo, support, roles, G, params))
         pg = _prior(prim, moves @ G)
         scored[gi] = (moves, pg, clear_g[: params.max_receivers_ranked], n_pref)  # receivers: best score first
         pending += [(_cost_key(float(pg[m]), n_pref + int(m)), gi, int(m)) for m in np.nonzero(pg < params.prior_cut)[0]]
         n_pref += len(moves)
     pending.sort()
-    ready = [(_cost_key(c[0], c[1]), c) for c in _paired_transfers(geo, support, giver, free, arms, params, clear_of,
+    ready = [(_cost_key(c[0], c[1]), c) for c in _paired_transfers(geo, support, giver, free, roles, params, clear_of,
                                                                      scene_clear, obj_pts, stats)]
     heapq.heapify(ready)
     for i in range(0, len(pending) + RANK_CHUNK, RANK_CHUNK):
@@ -486,14 +524,14 @@ def _ranked_transfers(geo, support, giver, free, arms, collider, params, clear, 
             yield heapq.heappop(ready)[1]
         if bound is None:
             return
-        for c in _score_moves(pending[i: i + RANK_CHUNK], scored, free, arms["secondary"], params, scene_clear, obj_pts,
+        for c in _score_moves(pending[i: i + RANK_CHUNK], scored, free, roles.receiver, params, scene_clear, obj_pts,
                               stats):
             heapq.heappush(ready, (_cost_key(c[0], c[1]), c))
 
 
 def _score_moves(chunk: list, scored: dict, free, sec: Arm, params, scene_clear, obj_pts, stats) -> list[tuple]:
     """The candidates among ``chunk`` ((key, giver, move index) rows): the transfer poses where the object
-    keeps clear of the scene and the secondary is predicted to reach a clear receiver, with their costs."""
+    keeps clear of the scene and the receiving arm ``sec`` is predicted to reach a clear receiver, with their costs."""
     out = []
     for gi in dict.fromkeys(g for _, g, _ in chunk):
         moves, pg, receivers, first = scored[gi]
@@ -510,14 +548,14 @@ def _score_moves(chunk: list, scored: dict, free, sec: Arm, params, scene_clear,
     return out
 
 
-def _paired_transfers(geo, support, giver, free, arms, params, clear_of, scene_clear, obj_pts, stats) -> list[tuple]:
+def _paired_transfers(geo, support, giver, free, roles, params, clear_of, scene_clear, obj_pts, stats) -> list[tuple]:
     """Candidates as :func:`_ranked_transfers`'s, their transfer poses solved for each (giver, clear receiver)
     pair (:func:`._handover_pairs.pair_moves`): cost = the named terms of ``PAIR_COST_TERMS`` (both arms'
     priors, the receiver's score); each candidate offers only its own receiver. After the giver-first
     candidates of equal cost."""
-    prim, sec = arms["primary"], arms["secondary"]
+    prim, sec = roles.giver, roles.receiver
     pp = params.pairs
-    targets, _ = _transfer_targets(geo, support, sec.T_b1_b, params)
+    targets, _ = _transfer_targets(geo, support, roles, params)
     out = []
     for gi, clear_g in clear_of.items():
         G = giver.grasps.T_b1_g[gi]
@@ -543,14 +581,14 @@ def _paired_transfers(geo, support, giver, free, arms, params, clear_of, scene_c
     return out
 
 
-def _receiver_order(sec: Arm, Rt: np.ndarray, free: GraspSet, clear: np.ndarray,
+def _receiver_order(roles: _Roles, Rt: np.ndarray, free: GraspSet, clear: np.ndarray,
                     params: HandoverParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(the clear receivers to check, as indices into ``clear``; catch probability and margin of every clear
-    receiver): those the secondary is likely to reach, best score first within tiers of its prior and, within
+    receiver): those the receiving arm is likely to reach, best score first within tiers of its prior and, within
     a tier, the more likely to catch the object despite the calibration error first."""
-    tiers = np.digitize(_prior(sec, Rt), (0.05, 0.08, 0.12))
+    tiers = np.digitize(_prior(roles.receiver, Rt), (0.05, 0.08, 0.12))
     margin = 0.5 * (free.width[clear] - free.contact_width[clear])
-    catch = catch_probability(margin, _transfer_sigma(params, sec.T_b1_b, Rt[:, :3, 3]))
+    catch = catch_probability(margin, _transfer_sigma(params, roles.T_b1_b2, Rt[:, :3, 3]))
     # and whether its pads end up on the object: a receiver whose contact lies at its fingertips (depth 0)
     # closes on the object's edge and lets it slip when the object is a few millimetres off along its approach
     likely = np.round(catch * giver_hold_probability(free.depth[clear], params), 1)
@@ -559,26 +597,27 @@ def _receiver_order(sec: Arm, Rt: np.ndarray, free: GraspSet, clear: np.ndarray,
     return order, catch, margin
 
 
-def _first_receiver(geo, giver, free, sec, sec_reach, T_b2_b1, collider, check, params, gi, move, Gt, rg, clear,
+def _first_receiver(geo, giver, free, roles, rec_reach, collider, params, gi, move, Gt, rg, clear,
                     stats) -> Handover | None:
-    """The hand-over with the first clear receiver that the secondary reaches (and ``check`` passes) for the
+    """The hand-over with the first clear receiver that the receiving arm reaches (and the roles' arm-against-arm
+    ``check`` passes) for the
     giver grasp ``gi`` moved by ``move`` to ``Gt`` (reached as ``rg``), or None."""
     w_closed = float(giver.grasps.contact_width[gi])
     Rt = move @ free.T_b1_g[clear]
-    order, catch, margin = _receiver_order(sec, Rt, free, clear, params)
+    order, catch, margin = _receiver_order(roles, Rt, free, clear, params)
     stats["receiver_candidates"] += len(order)
     if not len(order):
         return None
     ks = clear[order]
-    rr = sec_reach(T_b2_b1 @ Rt[order], free.width[ks])
+    rr = rec_reach(inv_T(roles.receiver.T_b1_b) @ Rt[order], free.width[ks])
     for n, k in enumerate(ks):
         if not rr.ok[n]:
             continue
         stats["receiver_reached"] += 1
         R_k = Rt[order[n]]
         R_used = R_k if not rr.flipped[n] else rotate_about_approach(R_k)
-        if check is not None:
-            ok2, _ = check(rg.q[0], w_closed, rr.q[n], float(free.width[k]))
+        if roles.check is not None:
+            ok2, _ = roles.check(rg.q[0], w_closed, rr.q[n], float(free.width[k]))
             if not ok2:
                 continue
         gap = grippers_distance(collider, Gt, w_closed, R_used, float(free.contact_width[k]))
@@ -591,20 +630,19 @@ def _first_receiver(geo, giver, free, sec, sec_reach, T_b2_b1, collider, check, 
         score = 0.5 * (float(giver.grasps.score[gi]) + float(free.score[k])) * c * hold
         return Handover(move, move[:3, :3] @ geo.centre + move[:3, 3], gi, Gt, rg.q[0], w_closed, receiver,
                         gap, score, dict(stats), c, float(margin[order[n]]),
-                        float(_transfer_sigma(params, sec.T_b1_b, R_used[:3, 3])[0]), giver,
-                        float(release_width(giver.grasps.width[gi], w_closed, params)))
+                        float(_transfer_sigma(params, roles.T_b1_b2, R_used[:3, 3])[0]), giver,
+                        float(release_width(giver.grasps.width[gi], w_closed, params)), roles.giver.name)
     return None  # one receiver per (giver, transfer pose): the next alternative is another pose
 
 
-def _search(geo, support, giver, free, arms, collider, check, params, clear, obstacles_b1, object_points_b1, stats):
+def _search(geo, support, giver, free, roles, collider, params, clear, obstacles_b1, object_points_b1, stats):
     """Every feasible hand-over, cheapest predicted first (see the module docstring); counts into ``stats``."""
-    prim, sec = arms["primary"], arms["secondary"]
+    prim, sec = roles.giver, roles.receiver
     with_pre = getattr(sec.reach, "with_pregrasp", None)
-    sec_reach = with_pre(params.receiver_pregrasp) if with_pre is not None else sec.reach
-    T_b2_b1 = inv_T(sec.T_b1_b)
+    rec_reach = with_pre(params.receiver_pregrasp) if with_pre is not None else sec.reach
     T_b_b1 = inv_T(prim.T_b1_b)
-    scene_clear, obj_pts = _scene_clearance(geo, support, sec, params, obstacles_b1, object_points_b1)
-    cands = _ranked_transfers(geo, support, giver, free, arms, collider, params, clear, scene_clear, obj_pts, stats)
+    scene_clear, obj_pts = _scene_clearance(geo, support, roles, params, obstacles_b1, object_points_b1)
+    cands = _ranked_transfers(geo, support, giver, free, roles, collider, params, clear, scene_clear, obj_pts, stats)
     for _, _, gi, T_move, clear in itertools.islice(cands, params.max_transfer_checks):
         stats["transfer_poses"] += 1
         G = giver.grasps.T_b1_g[gi]
@@ -620,7 +658,7 @@ def _search(geo, support, giver, free, arms, collider, check, params, clear, obs
             if scene_clear is not None and not _clear_of_scene(scene_clear, move, obj_pts):
                 stats["object_in_scene"] += 1  # turned with the giver's wrist, the object meets the scene
                 continue
-        found = _first_receiver(geo, giver, free, sec, sec_reach, T_b2_b1, collider, check, params, gi, move, Gt, rg,
+        found = _first_receiver(geo, giver, free, roles, rec_reach, collider, params, gi, move, Gt, rg,
                                 clear, stats)
         if found is not None:
             yield found

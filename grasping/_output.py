@@ -105,7 +105,7 @@ def _object_dict(op: ObjectPlan, T_b1_b2: np.ndarray | None, arms_checked: bool)
 
 def _handover_dict(h, op, rank_of: dict, T_b1_b2) -> dict:
     """One hand-over as grasps.json writes it (``handover`` and each of ``handover_alternatives``)."""
-    giver = h.givers if h.givers is not None else op.reach["primary"]
+    giver = h.givers if h.givers is not None else op.reach[h.giver_arm]
     gi = h.giver_index
     return {
         "T_move": h.T_move,
@@ -113,12 +113,12 @@ def _handover_dict(h, op, rank_of: dict, T_b1_b2) -> dict:
         "gap": h.gap,
         "score": h.score,
         "catch": {"probability": h.catch, "margin_m": h.margin, "position_sigma_m": h.sigma},
-        "giver": {"arm": "primary", "grasp_rank": rank_of.get(int(giver.index[gi])),
+        "giver": {"arm": h.giver_arm, "grasp_rank": rank_of.get(int(giver.index[gi])),
                   "pick": {"T_b1_g": giver.grasps.T_b1_g[gi], "q": giver.q[gi], "q_pregrasp": giver.q_pre[gi],
                            "width": float(giver.grasps.width[gi])},
                   "transfer": {"T_b1_g": h.giver_T_b1_g, "T_b2_g": _in_b2(h.giver_T_b1_g, T_b1_b2), "q": h.giver_q},
                   "contact_width": h.giver_width, "release_width": h.giver_release_width},
-        "receiver": {"arm": "secondary", "T_b1_g": h.receiver["T_b1_g"],
+        "receiver": {"arm": h.receiver_arm, "T_b1_g": h.receiver["T_b1_g"],
                      "T_b2_g": _in_b2(h.receiver["T_b1_g"], T_b1_b2), "width": h.receiver["width"],
                      "contact_width": h.receiver["contact_width"], "depth": h.receiver["depth"],
                      "score": h.receiver["score"], "terms": h.receiver["terms"], "q": h.receiver["q"],
@@ -189,9 +189,9 @@ def _drawn_grippers(plan: GraspPlan) -> list[tuple[np.ndarray, str, str]]:
         if op.handover is not None:
             h = op.handover
             drawn.append((_gripper_segments(plan.gripper, h.giver_T_b1_g, h.giver_width), "darkorange",
-                          f"obj {op.id} hand-over giver"))
+                          f"obj {op.id} hand-over giver ({h.giver_arm})"))
             drawn.append((_gripper_segments(plan.gripper, h.receiver["T_b1_g"], h.receiver["width"]), "purple",
-                          f"obj {op.id} hand-over receiver"))
+                          f"obj {op.id} hand-over receiver ({h.receiver_arm})"))
     return drawn
 
 

@@ -70,6 +70,10 @@ class PlanParams:
     joint_lift_check: two-arm grasps are first looked for among those both arms can also carry this far
         straight up (the task's lifts are 11-15 cm); 0 turns the check off.
     handover: plan a hand-over for objects one arm can lift (needs both arms).
+    handover_givers: the arms that may give in a hand-over, in order of preference: an object is searched
+        with the next one only when the one before finds no hand-over for it (or reaches none of its picks);
+        the primary gives by default, the secondary where the primary cannot (an object only the secondary
+        reaches). ``("primary",)``: the primary always gives.
     workspace_radius: background points farther than this from every base (horizontally) are dropped.
     retry_factor: when no arm (or not the primary, which picks) reaches any grasp of an object, sample again
         with this many times the candidates, hinted by the lacking arms (and twice the reach budget); 1
@@ -99,6 +103,7 @@ class PlanParams:
     joint_for_all: bool = False
     joint_min_extent: float = 0.15
     handover: bool = True
+    handover_givers: tuple[str, ...] = ("primary", "secondary")
     max_joint_pairs: int = 5
     joint_lift_check: float = 0.12
     workspace_radius: float = 1.0
@@ -145,8 +150,9 @@ class ObjectPlan:
     mass_estimate: float = 0.0
     stats: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
-    #: a hand-over search with fresh grasp draws, run by ``plan_grasps`` only when no object has a hand-over
-    redraw: Callable[[], list] | None = field(default=None, repr=False, compare=False)
+    #: giver arm -> a hand-over search from it with fresh grasp draws, run by ``plan_grasps`` only when no
+    #: object has a hand-over from that giver or one before it (``_redraw_where_none``)
+    redraws: dict = field(default_factory=dict, repr=False, compare=False)
 
     def pair_grasps(self, pair: JointPair) -> tuple[ArmGrasps, ArmGrasps]:
         """The primary's and the secondary's reachable grasp sets a joint pair indexes into."""
@@ -225,7 +231,7 @@ def plan_object(k: int, cloud: SceneCloud, support: Support, gripper: GripperMod
             t1 = time.perf_counter()
             _joint(plan, support, gripper, collider, others, arms, check, params, long_side)
             plan.timings["joint"] = time.perf_counter() - t1
-        if plan.mode == "single" and params.handover and len(plan.reach.get("primary", [])):
+        if plan.mode == "single" and params.handover and any(len(plan.reach.get(a, [])) for a in params.handover_givers):
             t1 = time.perf_counter()
             _handover(plan, support, gripper, collider, arms, check, params, cloud.points[~mask], blocked)
             plan.timings["handover"] = time.perf_counter() - t1
@@ -395,7 +401,9 @@ def _joint_pairs(plan: ObjectPlan, support: Support, collider: GripperCollider, 
 def _handover(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: GripperCollider,
               arms: dict[str, Arm], check: TwoArmCheck | None, params: PlanParams, obstacles_b1: np.ndarray,
               blocked: SceneOctree) -> None:
-    """A hand-over: receiver grasps sampled on the object in the air (its bottom closed, from every side)."""
+    """A hand-over: receiver grasps sampled on the object in the air (its bottom closed, from every side), then
+    the givers of ``params.handover_givers`` in turn (those that reach a pick of the object) until one finds
+    a hand-over (``_handover_from``)."""
     closed = closed_geometry(plan.geometry, support)
     # every collision-free candidate, not only the best-scored: those cluster at the object's centre, where
     # the giver's fingers are, and the receiver needs grasps away from them (measured on the demo's mug and
@@ -408,33 +416,45 @@ def _handover(plan: ObjectPlan, support: Support, gripper: GripperModel, collide
     unseen = plan.unseen if plan.unseen is not None else np.zeros((0, 3))
     receiver_blocked = SceneOctree(unseen, params.octree_resolution)
     plan.free_grasps, _ = sample_grasps(closed, support, gripper, collider, receiver_blocked, free_params)
-    # the giver holds the object where it leaves the receiver room, not where a single-arm pick is best
-    plan.giver_picks = plan.grasps
-    found = _search_handovers(plan, support, collider, arms, check, params, obstacles_b1, closed)
-    if not found and params.handover_params.shallow_depths:
-        # none: the picks go as deep as the fingers fit, and a small object held so may be covered where the
-        # receiver's fingers would go. Search again with shallow holds as the givers (the same sampler at the
-        # shallow depths only, with the primary's approach hints: the giver is the primary). Only then: on
-        # the task bench, offered alongside the picks, shallow holds displaced deep ones that had worked
-        # (seed 3's can).
-        shallow, _ = sample_grasps(plan.geometry, support, gripper, collider, blocked,
-                                   replace(params.sampler, depths=params.handover_params.shallow_depths),
-                                   approach_hints=_primary_hints(plan, arms))
-        if len(shallow):
-            plan.giver_picks = shallow
-            found = _search_handovers(plan, support, collider, arms, check, params, obstacles_b1, closed,
-                                      reached=False)
-            plan.stats["handover"]["shallow_picks"] = len(shallow)
-            _after_the_picks(plan, shallow, found)
-    if not found and params.handover_params.redraws:
-        plan.redraw = partial(_redraw_handovers, plan, support, gripper, collider, arms, check, params, obstacles_b1,
-                              blocked, receiver_blocked, closed, free_params)
+    found: list = []
+    for giver in (a for a in params.handover_givers if a in arms and len(plan.reach.get(a, []))):
+        found = _handover_from(plan, giver, support, gripper, collider, arms, check, params, obstacles_b1, blocked,
+                               closed)
+        if found:
+            break
+        if params.handover_params.redraws:
+            plan.redraws[giver] = partial(_redraw_handovers, plan, support, gripper, collider, arms, check, params,
+                                          obstacles_b1, blocked, receiver_blocked, closed, free_params, giver)
     _set_handover(plan, found)
 
 
-def _primary_hints(plan: ObjectPlan, arms: dict[str, Arm]) -> np.ndarray | None:
-    """(K, 3) approach directions with which the primary (the giver) reaches near the object, or None."""
-    reach = arms["primary"].reach
+def _handover_from(plan: ObjectPlan, giver: str, support: Support, gripper: GripperModel, collider: GripperCollider,
+                   arms: dict[str, Arm], check: TwoArmCheck | None, params: PlanParams, obstacles_b1: np.ndarray,
+                   blocked: SceneOctree, closed) -> list:
+    """The hand-overs from ``giver`` (an arm name): its reachable picks first, then shallow holds."""
+    # the giver holds the object where it leaves the receiver room, not where a single-arm pick is best
+    plan.giver_picks = plan.grasps
+    found = _search_handovers(plan, support, collider, arms, check, params, obstacles_b1, closed, giver=giver)
+    if not found and params.handover_params.shallow_depths:
+        # none: the picks go as deep as the fingers fit, and a small object held so may be covered where the
+        # receiver's fingers would go. Search again with shallow holds as the givers (the same sampler at the
+        # shallow depths only, with the giver's approach hints). Only then: on the task bench, offered
+        # alongside the picks, shallow holds displaced deep ones that had worked (seed 3's can).
+        shallow, _ = sample_grasps(plan.geometry, support, gripper, collider, blocked,
+                                   replace(params.sampler, depths=params.handover_params.shallow_depths),
+                                   approach_hints=_giver_hints(plan, arms, giver))
+        if len(shallow):
+            plan.giver_picks = shallow
+            found = _search_handovers(plan, support, collider, arms, check, params, obstacles_b1, closed,
+                                      reached=False, giver=giver)
+            plan.stats["handover"]["shallow_picks"] = len(shallow)
+            _after_the_picks(plan, shallow, found)
+    return found
+
+
+def _giver_hints(plan: ObjectPlan, arms: dict[str, Arm], giver: str) -> np.ndarray | None:
+    """(K, 3) approach directions with which the giver reaches near the object, or None."""
+    reach = arms[giver].reach
     return reach.approach_hints(plan.geometry.centre) if hasattr(reach, "approach_hints") else None
 
 
@@ -447,8 +467,8 @@ def _after_the_picks(plan: ObjectPlan, extra: GraspSet, found: list) -> None:
         givers.index = givers.index + len(plan.grasps)
 
 
-NO_HANDOVER = ("no hand-over found: no transfer pose where the primary holds it and the secondary reaches a grasp"
-               " clear of the primary's fingers")
+NO_HANDOVER = ("no hand-over found: no transfer pose where one arm holds it and the other reaches a grasp clear of"
+               " the first one's fingers")
 
 
 def _set_handover(plan: ObjectPlan, found: list) -> None:
@@ -458,29 +478,38 @@ def _set_handover(plan: ObjectPlan, found: list) -> None:
     plan.notes = [n for n in plan.notes if n != NO_HANDOVER] + ([] if found else [NO_HANDOVER])
 
 
-def _redraw_where_none(plans: list[ObjectPlan], log: Callable[[str], None] = _log_default) -> None:
-    """When no object has a hand-over, each object whose search found none searches again with fresh grasp
-    draws (``_redraw_handovers``); a scene that has one already keeps its plans (the draws cost a second or
-    two per object, and the task needs one object)."""
-    if any(p.handover is not None for p in plans):
-        return
-    for p in plans:
-        if p.redraw is not None:
+def _redraw_where_none(plans: list[ObjectPlan], log: Callable[[str], None] = _log_default,
+                       givers: tuple[str, ...] = ("primary", "secondary")) -> None:
+    """For each of ``givers`` in turn (``PlanParams.handover_givers``): when no object has a hand-over from it
+    or from a giver before it, each object whose search from it found none searches again with fresh grasp
+    draws (``_redraw_handovers``); a hand-over found so replaces one from a later giver. A scene that has one
+    already keeps its plans (the draws cost a second or two per object, and the task needs one object)."""
+    done: list[str] = []
+    for giver in givers:
+        done.append(giver)
+        if any(p.handover is not None and p.handover.giver_arm in done for p in plans):
+            return
+        for p in plans:
+            if giver not in p.redraws:
+                continue
             t1 = time.perf_counter()
-            _set_handover(p, p.redraw())
-            p.timings["handover_redraw"] = time.perf_counter() - t1
-            p.timings["total"] = p.timings.get("total", 0.0) + p.timings["handover_redraw"]
-            log(f"object {p.id}: no object had a hand-over; grasps drawn again: "
-                f"{'hand-over found' if p.handover is not None else 'none'} ({p.timings['handover_redraw']:.2f} s)")
+            found = p.redraws[giver]()
+            if found or p.handover is None:
+                _set_handover(p, found)
+            p.timings["handover_redraw"] = p.timings.get("handover_redraw", 0.0) + time.perf_counter() - t1
+            p.timings["total"] = p.timings.get("total", 0.0) + time.perf_counter() - t1
+            log(f"object {p.id}: no object had a hand-over from the {giver}; grasps drawn again: "
+                f"{'hand-over found' if found else 'none'} ({time.perf_counter() - t1:.2f} s)")
 
 
 def _redraw_handovers(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: GripperCollider,
                       arms: dict[str, Arm], check: TwoArmCheck | None, params: PlanParams, obstacles_b1: np.ndarray,
-                      blocked: SceneOctree, receiver_blocked: SceneOctree, closed, free_params: SamplerParams) -> list:
-    """No hand-over from the first draws: the receiver's grasps and the giver's picks drawn again with other
-    seeds (``HandoverParams.redraws`` times; the picks denser, with the primary's approach hints), searched as
-    the shallow holds are. The first draws stay in the plan when none is found."""
-    hints = _primary_hints(plan, arms)
+                      blocked: SceneOctree, receiver_blocked: SceneOctree, closed, free_params: SamplerParams,
+                      giver: str = "primary") -> list:
+    """No hand-over from ``giver`` with the first draws: the receiver's grasps and the giver's picks drawn again
+    with other seeds (``HandoverParams.redraws`` times; the picks denser, with the giver's approach hints),
+    searched as the shallow holds are. The first draws stay in the plan when none is found."""
+    hints = _giver_hints(plan, arms, giver)
     first_free, first_picks, stats = plan.free_grasps, plan.giver_picks, plan.stats.get("handover", {})
     sp = params.sampler
     for k in range(1, params.handover_params.redraws + 1):
@@ -493,7 +522,8 @@ def _redraw_handovers(plan: ObjectPlan, support: Support, gripper: GripperModel,
         if not len(picks) or not len(plan.free_grasps):
             continue
         plan.giver_picks = picks
-        found = _search_handovers(plan, support, collider, arms, check, params, obstacles_b1, closed, reached=False)
+        found = _search_handovers(plan, support, collider, arms, check, params, obstacles_b1, closed, reached=False,
+                                  giver=giver)
         plan.stats["handover"]["redraw"] = k
         if found:
             _after_the_picks(plan, picks, found)
@@ -505,17 +535,19 @@ def _redraw_handovers(plan: ObjectPlan, support: Support, gripper: GripperModel,
 
 def _search_handovers(plan: ObjectPlan, support: Support, collider: GripperCollider, arms: dict[str, Arm],
                       check: TwoArmCheck | None, params: PlanParams, obstacles_b1: np.ndarray, closed,
-                      reached: bool = True) -> list:
-    """Hand-overs with givers chosen among ``plan.giver_picks`` (``handover_givers``, ``plan_handovers``);
-    ``reached``: those are ``plan.grasps``, whose reachable ones ``plan.reach["primary"]`` holds already.
-    Sets ``plan.stats["handover"]``."""
-    ag = plan.reach["primary"]
+                      reached: bool = True, giver: str = "primary") -> list:
+    """Hand-overs from the arm ``giver`` with its grasps chosen among ``plan.giver_picks`` (``handover_givers``,
+    ``plan_handovers``); ``reached``: those are ``plan.grasps``, whose reachable ones ``plan.reach[giver]``
+    holds already. Sets ``plan.stats["handover"]`` (with the giver's name)."""
+    ag = plan.reach[giver]
     known = ag if reached else ArmGrasps(ag.arm, ag.grasps.take([]), np.zeros(0, int), ag.q[:0], ag.q_pre[:0],
                                          ag.T_b_g[:0])
-    givers, clear = handover_givers(plan.giver_picks, plan.free_grasps, known, arms["primary"],
+    givers, clear = handover_givers(plan.giver_picks, plan.free_grasps, known, arms[giver],
                                     collider, params.handover_params)
     found, plan.stats["handover"] = plan_handovers(plan.geometry, support, givers, plan.free_grasps, arms, collider,
-                                                   check, params.handover_params, clear, obstacles_b1, closed.points)
+                                                   check, params.handover_params, clear, obstacles_b1, closed.points,
+                                                   giver_arm=giver)
+    plan.stats["handover"]["giver_arm"] = giver
     plan.stats["handover"]["givers"] = {"reachable": len(givers), "tried": givers.tried, "why_not": givers.reasons}
     return found
 
@@ -553,8 +585,8 @@ def plan_grasps(cloud: SceneCloud, gripper: GripperModel | None = None, arms: di
     support = estimate_support(cloud.points, cloud.labels, cloud.table_plane)
     collider = GripperCollider(gripper, params.sampler.approach)
     plans = [plan_object(k, cloud, support, gripper, collider, arms, T_b1_b2, params, src, log) for k in ids]
-    _redraw_where_none(plans, log)
+    _redraw_where_none(plans, log, params.handover_givers)
     for p in plans:  # the deferred searches hold each object's octrees and geometry: not kept with the plan
-        p.redraw = None
+        p.redraws = {}
     return GraspPlan(support, gripper, plans, sorted(arms) if arms else [], T_b1_b2, params,
                      {"total": time.perf_counter() - t0})

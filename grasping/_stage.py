@@ -36,11 +36,13 @@ def _no_grasp_problems(plan, seg_path: Path) -> list:
 
 def grasp_stage(scene: str | Path, segments: str | Path, out: str | Path, calibration: str | Path | None = None,
                 robot: str = "piper", objects: list[int] | None = None, candidates: int = 500,
-                handover: bool = True, seed: int = 0, log: Callable[[str], None] | None = None) -> GraspStage:
+                handover: bool = True, seed: int = 0, log: Callable[[str], None] | None = None,
+                givers: tuple[str, ...] = ("primary", "secondary")) -> GraspStage:
     """Plan grasps for the objects of ``segments`` in the cloud ``scene`` (scene_b1.ply or its folder).
 
     ``calibration``: calibration.json with T_b1_b2 (default: beside the cloud; without one, the primary arm
-    only). ``candidates``: hand frames sampled per object (>= 10). The output folder is checked first.
+    only). ``candidates``: hand frames sampled per object (>= 10). ``givers``: the arms that may pick and give
+    in a hand-over, in order of preference (``PlanParams.handover_givers``). The output folder is checked first.
     Raises InputError for bad input, or listing why when no object has a usable grasp.
     """
     from bimanual_app.robots import load_robot
@@ -72,7 +74,8 @@ def grasp_stage(scene: str | Path, segments: str | Path, out: str | Path, calibr
     log(f"{len(points)} points, objects {cloud.object_ids}; gripper {gripper.robot}: opening "
         f"{gripper.min_width * 1000:.0f}-{gripper.max_width * 1000:.0f} mm, fingers {gripper.finger_length * 1000:.0f} mm")
     arms = make_arms(load_robot(robot), gripper, T_b1_b2)
-    params = PlanParams(sampler=replace(SamplerParams(), n_candidates=candidates, seed=seed), handover=handover)
+    params = PlanParams(sampler=replace(SamplerParams(), n_candidates=candidates, seed=seed), handover=handover,
+                        handover_givers=tuple(givers))
     if sigma is not None:  # hand-over receivers ranked by how likely they catch the object despite it
         params = replace(params, handover_params=replace(params.handover_params, b2b_sigma_m=sigma[0],
                                                          b2b_sigma_rad=sigma[1]))

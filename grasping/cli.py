@@ -26,6 +26,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--objects", type=int, nargs="+", default=None, help="plan only these object ids")
     p.add_argument("--candidates", type=int, default=500, help="hand frames sampled per object (default 500)")
     p.add_argument("--no-handover", action="store_true", help="do not plan hand-overs")
+    p.add_argument("--handover-giver", choices=("either", "primary"), default="either",
+                   help="which arm may pick and give in a hand-over: 'either' (default: the primary where it "
+                        "can, else the secondary) or 'primary' only")
     p.add_argument("--seed", type=int, default=0, help="random seed of the sampler")
     p.add_argument("--quiet", action="store_true", help="print only the summary")
 
@@ -43,11 +46,21 @@ def run(args: argparse.Namespace) -> int:
 
     st = grasp_stage(args.scene, args.segments, args.out, calibration=args.calibration, robot=args.robot,
                      objects=args.objects, candidates=args.candidates, handover=not args.no_handover,
-                     seed=args.seed, log=log)
+                     seed=args.seed, log=log, givers=GIVERS[args.handover_giver])
     for p in st.warnings:
         print(f"bijcr grasp: warning: {p}", file=sys.stderr)
     print("\n".join(report_lines(st)) + f" ({time.perf_counter() - t0:.1f} s)")
     return 0
+
+
+GIVERS = {"either": ("primary", "secondary"), "primary": ("primary",)}  # --handover-giver -> PlanParams.handover_givers
+
+
+def _handover_cell(op) -> str:
+    """'yes', 'no', or 'yes (2->1)' for a hand-over the secondary gives."""
+    if op.handover is None:
+        return "no"
+    return "yes" if op.handover.giver_arm == "primary" else "yes (2->1)"
 
 
 def report_lines(st) -> list[str]:
@@ -60,5 +73,5 @@ def report_lines(st) -> list[str]:
         r2 = len(op.reach.get("secondary", [])) if "secondary" in op.reach else "-"
         note = (str(op.problems[0].message) if op.problems else (op.notes[0] if op.notes else ""))
         lines.append(f"{op.id:>6}  {op.mode:<6}  {n:>6}  {r1:>7}  {r2!s:>9}  {len(op.joint):>5}  "
-                     f"{'yes' if op.handover is not None else 'no':>9}  {note}")
+                     f"{_handover_cell(op):>9}  {note}")
     return lines + [f"wrote {st.files['grasps.json']} and {st.files['grasps.png']}"]

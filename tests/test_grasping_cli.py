@@ -80,3 +80,18 @@ def test_cli_says_why_a_wide_object_has_no_two_arm_grasp(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "wider than the gripper's stroke" in err and "no balanced two-arm grasp" in err
     assert not (tmp_path / "out" / "grasps.json").exists()
+
+
+def test_cli_handover_giver_option_sets_the_givers(capsys):
+    import argparse
+
+    from grasping.cli import GIVERS, add_arguments
+
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    base = ["cloud.ply", "--segments", "s.npz", "--out", "o"]
+    assert GIVERS[p.parse_args(base).handover_giver] == ("primary", "secondary")  # either arm, primary first
+    assert GIVERS[p.parse_args(base + ["--handover-giver", "primary"]).handover_giver] == ("primary",)
+    with pytest.raises(SystemExit):
+        p.parse_args(base + ["--handover-giver", "left"])
+    assert "invalid choice" in capsys.readouterr().err

@@ -210,7 +210,7 @@ def test_handover_grasps_are_drawn_again_when_no_draw_gave_one(monkeypatch):
     from grasping import HandoverParams, plan_to_dict
 
     P, L = make_cloud([Obj("cylinder", (0.3, 0.2), (0.05, 0.05, 0.10))])
-    params = PlanParams(retry_factor=1)
+    params = PlanParams(retry_factor=1, handover_givers=("primary",))  # the primary's draws only
     real, calls = gplan.plan_handovers, []
 
     def none_until(n):
@@ -241,17 +241,47 @@ def test_handover_grasps_are_drawn_again_when_no_draw_gave_one(monkeypatch):
 
 
 def test_handover_grasps_are_drawn_again_only_where_no_object_has_a_hand_over():
+    from types import SimpleNamespace
+
     from grasping._plan import NO_HANDOVER, ObjectPlan, _redraw_where_none
 
     calls = []
-    found = ObjectPlan(0, None, "single", handover="a hand-over")
-    none = ObjectPlan(1, None, "single", notes=[NO_HANDOVER], redraw=lambda: calls.append(1) or ["another"])
+    by_primary = SimpleNamespace(giver_arm="primary")
+    found = ObjectPlan(0, None, "single", handover=by_primary)
+    none = ObjectPlan(1, None, "single", notes=[NO_HANDOVER], redraws={"primary": lambda: calls.append(1) or [by_primary]})
     _redraw_where_none([found, none])
     assert not calls and none.handover is None  # the scene has one: no draws
     found.handover = None
     _redraw_where_none([found, none])
-    assert calls == [1] and none.handover == "another" and NO_HANDOVER not in none.notes
+    assert calls == [1] and none.handover is by_primary and NO_HANDOVER not in none.notes
     assert "handover_redraw" in none.timings
+
+
+def test_handover_redraws_go_giver_by_giver():
+    """A hand-over from the secondary does not stop the primary's draws (the primary gives by preference):
+    one found replaces it, none found keeps it; the secondary draws again only where no object has any."""
+    from types import SimpleNamespace
+
+    from grasping._plan import ObjectPlan, _redraw_where_none
+
+    calls = []
+    by_primary, by_secondary = SimpleNamespace(giver_arm="primary"), SimpleNamespace(giver_arm="secondary")
+
+    def draw(name, result):
+        return lambda: calls.append(name) or result
+
+    a = ObjectPlan(0, None, "single", handover=by_secondary, redraws={"primary": draw("a1", [])})
+    b = ObjectPlan(1, None, "single", redraws={"primary": draw("b1", []), "secondary": draw("b2", [by_secondary])})
+    _redraw_where_none([a, b])
+    assert calls == ["a1", "b1"] and a.handover is by_secondary and b.handover is None
+    calls.clear()
+    a.redraws["primary"] = draw("a1", [by_primary])
+    _redraw_where_none([a, b])
+    assert calls == ["a1", "b1"] and a.handover is by_primary  # found by the primary's draw: replaces the other
+    calls.clear()
+    a.handover, a.redraws = None, {}
+    _redraw_where_none([a, b])
+    assert calls == ["b1", "b2"] and b.handover is by_secondary
 
 
 def test_handover_transfer_pose_keeps_the_object_clear_of_the_scene():

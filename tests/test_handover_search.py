@@ -80,10 +80,10 @@ class _Cone:
     is within ``max_deg`` of the direction away from the base, tilted down by ``tilt_deg`` (lo, hi); on the
     table (below 12 cm) every grasp."""
 
-    def __init__(self, max_deg, tilt_deg):
+    def __init__(self, max_deg, tilt_deg, table=True):
         from grasping import callable_filter
 
-        self.max_deg, self.tilt_deg = max_deg, tilt_deg
+        self.max_deg, self.tilt_deg, self.table = max_deg, tilt_deg, table
         self.filter = callable_filter(self.ok)
 
     def ok(self, T):
@@ -93,7 +93,8 @@ class _Cone:
         tilt = np.radians(np.clip(np.degrees(np.arcsin(np.clip(-z[:, 2], -1, 1))), *self.tilt_deg))
         want = np.cos(tilt)[:, None] * away - np.sin(tilt)[:, None] * UP
         ang = np.degrees(np.arccos(np.clip((z * want).sum(axis=1), -1, 1)))
-        return (T[:, 2, 3] < 0.12) | (ang < self.max_deg)
+        low = T[:, 2, 3] < 0.12
+        return (low & self.table) | (~low & (ang < self.max_deg))
 
     def __call__(self, T, width=None, retreat=None, hold_off=None):
         return self.filter(T, width, retreat, hold_off)
@@ -122,19 +123,66 @@ def test_plan_handovers_finds_poses_where_each_arm_reaches_only_from_its_own_sid
     assert np.allclose(h.T_move[:3, :3] @ op.geometry.centre + h.T_move[:3, 3], h.centre)
 
 
+def test_the_secondary_gives_where_the_primary_reaches_no_pick():
+    """The primary reaches nothing on the table, only grasps in the air tilted 35-45 degrees down from its
+    own side; the secondary reaches every grasp on the table and level ones from its side in the air: the
+    secondary picks and gives, the primary receives, and grasps.json says which arm does what. With the
+    primary as the only giver (``handover_givers``) there is no hand-over."""
+    from grasping import Arm, PlanParams, plan_grasps, plan_to_dict, scene_cloud
+    from grasping._plan import NO_HANDOVER
+
+    T12 = facing_T_b1_b2(0.6)
+    P, L = make_cloud([Obj("box", (0.3, 0.2), (0.05, 0.05, 0.08), 0.3)], table_size=(0.8, 0.8))
+    giver, receiver = _Cone(10.0, (0.0, 5.0)), _Cone(8.0, (35.0, 45.0), table=False)
+    arms = {"primary": Arm("primary", np.eye(4), receiver), "secondary": Arm("secondary", T12, giver)}
+    plan = plan_grasps(scene_cloud(P, L), arms=arms, T_b1_b2=T12, params=PlanParams(retry_factor=1))
+    op = plan.objects[0]
+    assert len(op.reach["primary"]) == 0 and len(op.reach["secondary"]) > 0
+    h = op.handover
+    assert h is not None, (op.notes, op.stats.get("handover"))
+    assert h.giver_arm == "secondary" and h.receiver_arm == "primary" and op.stats["handover"]["giver_arm"] == "secondary"
+    assert giver.ok((np.linalg.inv(T12) @ h.giver_T_b1_g)[None])[0]
+    assert receiver.ok(h.receiver["T_b1_g"][None])[0]
+    d = plan_to_dict(plan)["objects"][0]["handover"]
+    assert d["giver"]["arm"] == "secondary" and d["receiver"]["arm"] == "primary"
+    only_primary = PlanParams(retry_factor=1, handover_givers=("primary",))
+    op1 = plan_grasps(scene_cloud(P, L), arms=arms, T_b1_b2=T12, params=only_primary).objects[0]
+    assert op1.handover is None and NO_HANDOVER not in op1.notes  # not searched: the primary reaches no pick
+
+
+def test_transfer_places_run_from_the_givers_base():
+    """A place ``f`` of the way along the line between the bases is measured from the giver's base: with the
+    secondary giving, the places mirror those of the primary giving, and the line points the other way."""
+    from types import SimpleNamespace
+
+    from grasping import Arm, HandoverParams
+    from grasping._handover import _roles, _transfer_targets
+
+    T12 = facing_T_b1_b2(0.6)
+    arms = {"primary": Arm("primary", np.eye(4), None), "secondary": Arm("secondary", T12, None)}
+    geo = SimpleNamespace(centre=np.array([0.2, 0.3, 0.03]))
+    support = SimpleNamespace(up=UP, height=-0.01)
+    p = HandoverParams(fractions=(0.25,), offsets=(0.0,), heights=(0.2,), towards_object=())
+    from_1, line_1 = _transfer_targets(geo, support, _roles(arms, "primary", None), p)
+    from_2, line_2 = _transfer_targets(geo, support, _roles(arms, "secondary", None), p)
+    assert np.allclose(from_1, [[0.15, 0.0, 0.19]]) and np.allclose(from_2, [[0.45, 0.0, 0.19]])
+    assert np.allclose(line_1, [1.0, 0.0, 0.0]) and np.allclose(line_2, -line_1)
+
+
 def test_receiver_order_prefers_pads_on_the_object():
     """Among receivers the secondary is as likely to reach and to catch, one whose contact lies deeper
     behind its fingertips (pads on the object, not on its edge) is checked first."""
     from grasping import Arm, HandoverParams, callable_filter
     from grasping._antipodal import GraspSet
-    from grasping._handover import _receiver_order
+    from grasping._handover import _receiver_order, _roles
 
     n = 3
     T = np.tile(np.eye(4), (n, 1, 1))
     T[:, 0, 3] = 0.3
     free = GraspSet(0, T, np.full(n, 0.07), np.full(n, 0.05), np.array([0.0, 0.02, 0.004]), np.full(n, 0.6))
-    sec = Arm("secondary", facing_T_b1_b2(0.6), callable_filter(lambda T: np.ones(len(T), bool)))
-    order, catch, margin = _receiver_order(sec, T, free, np.arange(n), HandoverParams())
+    every = callable_filter(lambda T: np.ones(len(T), bool))
+    arms = {"primary": Arm("primary", np.eye(4), every), "secondary": Arm("secondary", facing_T_b1_b2(0.6), every)}
+    order, catch, margin = _receiver_order(_roles(arms, "primary", None), T, free, np.arange(n), HandoverParams())
     assert list(order) == [1, 2, 0]
     assert np.allclose(margin, 0.01)
 
@@ -155,7 +203,8 @@ def test_alternatives_try_another_giver_grasp_first(monkeypatch):
             yield from (fake(g, 0.1 * k) for k, g in enumerate(order))
         return _search
 
-    args = (None, None, [1, 1, 1], [1], {"primary": None, "secondary": None}, None, None)  # three givers
+    arms = {a: gh.Arm(a, np.eye(4), None) for a in ("primary", "secondary")}
+    args = (None, None, [1, 1, 1], [1], arms, None, None)  # three givers
     monkeypatch.setattr(gh, "_search", search([0, 0, 1, 0, 2]))
     found, _ = gh.plan_handovers(*args, params=gh.HandoverParams(alternatives=3))
     assert [h.giver_index for h in found] == [0, 1, 2]

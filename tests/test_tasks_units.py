@@ -252,6 +252,72 @@ def test_handover_moves_a_secondary_in_the_way_aside_during_the_transfer():
     motion.validate_timeline(plan.timeline(), spans)  # raises if any sample collides or breaks a limit
 
 
+def test_a_hand_over_the_secondary_gives_plans_as_the_mirror_of_the_primarys():
+    """The fixture's world mirrored onto the other arm (FIX_T_B1_B2 is a half turn about the vertical, its own
+    inverse: each arm sees the mirrored world as the other saw the original) and its hand-over with the roles
+    swapped, joint values kept: the secondary reaches, picks, lifts and carries, the primary receives, and
+    the hold checks that the primary alone holds; the plan validates as a whole."""
+    from bimanual_app.planning import default_ready
+    from bimanual_app.robots import load_robot
+    from bimanual_app.tasks._motion import TaskMotion
+    from bimanual_app.tasks._planners import plan_handover
+    from tests._task_fixtures import FIX_T_B1_B2 as M
+    from tests._task_fixtures import SMALL_BOX, _cloud, box_surface_points, fixture_grasps
+
+    assert np.allclose(M @ M, np.eye(4))
+
+    def mirror(P):
+        return np.asarray(P) @ M[:3, :3].T + M[:3, 3]
+
+    robot = load_robot("piper")
+    pts, labels = _cloud()
+    pts = mirror(pts)
+    obj = mirror(box_surface_points(SMALL_BOX["centre"], SMALL_BOX["size"], 1500, visible_only=False))
+    up = np.array([0.0, 0.0, 1.0])
+    motion = TaskMotion(robot, M, pts, obj, pts[labels == 0], up=up)
+    g = fixture_grasps(robot)
+    h = g["objects"][0]["handover"]
+    h["T_move"] = M @ h["T_move"] @ M
+    h["giver"]["arm"], h["receiver"]["arm"] = "secondary", "primary"
+    for d in (h["giver"]["pick"], h["giver"]["transfer"], h["receiver"]):
+        d["T_b1_g"] = M @ d["T_b1_g"]
+    choice = handover_candidates(g, "grasps.json")[0]
+    assert (choice.giver, choice.taker) == ("secondary", "primary")
+    q0 = default_ready(robot)
+    plan = plan_handover(motion, choice, {"primary": q0, "secondary": q0}, {"primary": 0.0, "secondary": 0.0}, obj,
+                         up=up)
+    moved = {p.name: set(p.trajectories) for p in plan.phases}
+    for name in ("reach", "approach", "grasp", "lift", "release", "retreat"):
+        assert moved[name] == {"secondary"}, (name, moved)
+    for name in ("receive-reach", "receive-approach", "receive-grasp", "hold"):
+        assert moved[name] == {"primary"}, (name, moved)
+    assert plan.phases[-1].check == "handover-to-primary" and "primary holds" in plan.phases[-1].note
+    motion.validate_timeline(plan.timeline(), plan.opening_spans())
+
+
+def test_handover_arms_in_grasps_json_are_checked():
+    g = fixture_handover_json()
+    g["objects"][0]["handover"]["receiver"]["arm"] = "primary"
+    with pytest.raises(InputError, match=r"receiver\.arm.*both the primary"):
+        handover_candidates(g, "grasps.json")
+    g["objects"][0]["handover"]["giver"]["arm"] = "left"
+    with pytest.raises(InputError, match=r"giver\.arm.*unknown arm 'left'"):
+        handover_candidates(g, "grasps.json")
+    del g["objects"][0]["handover"]["giver"]["arm"], g["objects"][0]["handover"]["receiver"]["arm"]
+    c = handover_candidates(g, "grasps.json")[0]  # a grasps.json from before either arm could give
+    assert (c.giver, c.taker) == ("primary", "secondary")
+
+
+def fixture_handover_json() -> dict:
+    """The fixture's grasps.json (its hand-over only), without joint solutions."""
+    from bimanual_app.robots import load_robot
+    from tests._task_fixtures import fixture_grasps
+
+    g = fixture_grasps(load_robot("piper"))
+    g["objects"] = g["objects"][:1]
+    return g
+
+
 def test_points_between_the_open_fingers_of_a_pick_are_cut_as_the_object():
     """A part of the object the segmenter left as background (a bunny's ear) lies between the fingers of
     its pick: the closed fingers "touch" it. It is the object: ``cut_grasped`` takes it out of the map,

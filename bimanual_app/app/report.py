@@ -182,6 +182,8 @@ def _grasps_section(d: Path) -> str:
         for o in objs:  # grasps.json (docs/grasping.md): grasps, joint_grasps, handover (a dict or null)
             h = o.get("handover")
             ho = f"yes ({_fmt(float(h.get('score', 0.0)), '', 2)})" if isinstance(h, dict) and h else "no"
+            if isinstance(h, dict) and (h.get("giver") or {}).get("arm", "primary") != "primary":
+                ho += f", the {h['giver']['arm']} gives"
             notes = [str(n) for n in (o.get("notes") or [])]
             for p in o.get("problems") or []:  # "FILE [object K]: message -> fix: ..." -> the message
                 p = str(p.get("message", p)) if isinstance(p, dict) else str(p)

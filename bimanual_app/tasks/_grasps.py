@@ -73,7 +73,7 @@ class JointChoice:
 @dataclass
 class HandoverChoice:
     """A hand-over: the giver's pick grasp, the rigid object motion to the transfer pose, and the grasps
-    there (all in b1)."""
+    there (all in b1). The giver is ``pick.arm`` (``primary`` or ``secondary``), the receiver ``receiver.arm``."""
 
     object_id: int
     pick: GraspSpec
@@ -82,6 +82,17 @@ class HandoverChoice:
     receiver: GraspSpec
     score: float
     info: dict = field(default_factory=dict)
+
+    @property
+    def giver(self) -> str:
+        return self.pick.arm
+
+    @property
+    def taker(self) -> str:
+        return self.receiver.arm
+
+
+ARMS = ("primary", "secondary")
 
 
 def _arr(d: dict, key: str, shape=None):
@@ -171,7 +182,8 @@ def handover_candidates(grasps: dict, path: str) -> list[HandoverChoice]:
                 c.info["shape"] = shape_kind(o)
                 c.info["free_form"] = c.info["shape"] == "free-form"
                 out.append(c)
-    out.sort(key=lambda c: (c.info["free_form"], -c.score))
+    # the primary gives by preference (grasps.json offers the secondary's only where the primary gives none)
+    out.sort(key=lambda c: (c.info["free_form"], c.giver != "primary", -c.score))
     return out
 
 
@@ -182,15 +194,31 @@ def _handover_choice(oid: int, h: dict, path: str, where: str, pre: float) -> Ha
     except (KeyError, ValueError) as e:
         raise InputError(Problem(path, where + ".T_move", f"missing or invalid ({e})", "re-run `bijcr grasp`")) from None
     giver = h.get("giver") or {}
+    arm_g, arm_r = _handover_arms(h, path, where)
     cw = giver.get("contact_width")
-    pick = _spec(dict(giver.get("pick", {}), contact_width=cw), "primary", path, where + ".giver.pick", pre)
+    pick = _spec(dict(giver.get("pick", {}), contact_width=cw), arm_g, path, where + ".giver.pick", pre)
     # the giver lets go at the transfer pose opening ``release_width`` (grasps.json; else as wide as it picked)
     tr = dict(giver.get("transfer", {}), width=giver.get("release_width", pick.width), contact_width=cw)
     if "T_b1_g" not in tr:
         tr["T_b1_g"] = T_move @ pick.T_b1_g
-    gt = _spec(tr, "primary", path, where + ".giver.transfer", pre)
-    rec = _spec(h.get("receiver") or {}, "secondary", path, where + ".receiver", pre)
+    gt = _spec(tr, arm_g, path, where + ".giver.transfer", pre)
+    rec = _spec(h.get("receiver") or {}, arm_r, path, where + ".receiver", pre)
     return HandoverChoice(oid, pick, T_move, gt, rec, float(h.get("score", 0.0)), {k: h[k] for k in ("gap",) if k in h})
+
+
+def _handover_arms(h: dict, path: str, where: str) -> tuple[str, str]:
+    """(giver, receiver) arm names of a grasps.json hand-over entry: ``giver.arm`` and ``receiver.arm``
+    (absent: the primary gives, as grasps.json files before either arm could give)."""
+    arm_g = (h.get("giver") or {}).get("arm", "primary")
+    arm_r = (h.get("receiver") or {}).get("arm", ARMS[1 - ARMS.index(arm_g)] if arm_g in ARMS else "secondary")
+    for field_, arm in (("giver.arm", arm_g), ("receiver.arm", arm_r)):
+        if arm not in ARMS:
+            raise InputError(Problem(path, f"{where}.{field_}", f"unknown arm {arm!r}",
+                                     "use 'primary' or 'secondary' (or re-run `bijcr grasp`)"))
+    if arm_g == arm_r:
+        raise InputError(Problem(path, f"{where}.receiver.arm", f"the giver and the receiver are both the {arm_g}",
+                                 "one arm gives and the other receives: re-run `bijcr grasp`"))
+    return arm_g, arm_r
 
 
 def choose(cands: list, object_id: int | None, task: str, path: str, known_ids: list[int]):

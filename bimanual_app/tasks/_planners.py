@@ -57,6 +57,7 @@ CLOSE_S = 1.0  # s to close a gripper (force limited: it stops on the object)
 SETTLE_S = 0.4  # s still after a gripper change
 CLOSED = 0.0  # commanded width when closing on an object (the force limit stops the fingers)
 ARMS = ("primary", "secondary")
+HANDOVER_CHECK = {"secondary": "handover", "primary": "handover-to-primary"}  # receiver -> the hold's check
 
 
 def _jt(times, q, widths):
@@ -127,17 +128,25 @@ def _retreat_directions(T_b1_g: np.ndarray, up: np.ndarray) -> list[tuple[str, n
     return out
 
 
+def _base_b1(motion: TaskMotion, arm: str) -> np.ndarray:
+    """(3,) the arm's base origin in b1."""
+    world = motion.setup.world
+    return world.arms[world.arm_index(arm)].T_b1_b[:3, 3].copy()
+
+
 def _lift_directions(motion: TaskMotion, T_b1_g: np.ndarray, object_points: np.ndarray, up: np.ndarray,
-                     near: float = 0.03) -> list[tuple[str, np.ndarray]]:
+                     base_b1: np.ndarray | None = None, near: float = 0.03) -> list[tuple[str, np.ndarray]]:
     """A picked object's lift directions (unit (3,) in b1), in order of preference.
 
-    Straight up; up and towards the primary's base (near the edge of the reach); up and away from the
+    Straight up; up and towards the picking arm's base ``base_b1`` (3,; default b1's origin, the primary's)
+    (near the edge of the reach); up and away from the
     neighbours it stands beside (map points within ``near`` m of its points, above its bottom): a lift
     straight up beside a taller neighbour slides along it, and where the arm cannot go higher, the carry
     would start too close to it; back out along the approach, where that rises.
     """
     dirs = [("straight up", up)]
-    to_base = -T_b1_g[:3, 3] + (T_b1_g[:3, 3] @ up) * up
+    d_base = (np.zeros(3) if base_b1 is None else np.asarray(base_b1, dtype=np.float64)) - T_b1_g[:3, 3]
+    to_base = d_base - (d_base @ up) * up
     if np.linalg.norm(to_base) > 1e-6:
         to_base /= np.linalg.norm(to_base)
         dirs.append(("up and towards the base", (up + to_base) / np.linalg.norm(up + to_base)))
@@ -504,7 +513,7 @@ def _push_release(P: _Pair, plan: TaskPlan, S: dict, pre: dict) -> None:
                    f"both grippers back off {how}", "cartesian"))
 
 
-MAKE_WAY_TURNS = (1.2, -1.2, 0.6, -0.6)  # rad about the secondary's base joint (joint 1), tried in order
+MAKE_WAY_TURNS = (1.2, -1.2, 0.6, -0.6)  # rad about the receiver's base joint (joint 1), tried in order
 
 
 def plan_handover(motion: TaskMotion, choice: HandoverChoice, q_start: dict, width_start: dict,
@@ -512,7 +521,9 @@ def plan_handover(motion: TaskMotion, choice: HandoverChoice, q_start: dict, wid
     """The hand-over plan for ``choice`` from ``q_start``; raises PlanFailure (its message starts with the
     phase that could not be planned).
 
-    Where the waiting secondary is in the primary's way (its reach, approach or lift meet the secondary),
+    The giver is ``choice.giver`` (the primary, or the secondary where grasps.json says so), the receiver the
+    other arm; below, "primary" and "secondary" stand for giver and receiver. Where the waiting secondary is
+    in the primary's way (its reach, approach or lift meet the secondary),
     the plan starts with a ``make-way`` phase: the secondary turns about its base joint by the first of
     ``MAKE_WAY_TURNS`` from which the rest plans.
 
@@ -523,7 +534,7 @@ def plan_handover(motion: TaskMotion, choice: HandoverChoice, q_start: dict, wid
         return _handover(motion, choice, q_start, width_start, object_points, up, at)
     except PlanFailure as e:
         first = PlanFailure(e.stage, f"{at[-1]}: {e.message}")
-        if at[-1] not in ("reach", "approach", "lift") or "secondary" not in e.message:
+        if at[-1] not in ("reach", "approach", "lift") or choice.taker not in e.message:
             raise first from None
     # the waiting secondary is in the primary's way to the object or up from it (an object beside the
     # secondary's base): it first turns about its base joint, out of the way, and takes the object over
@@ -536,25 +547,26 @@ def plan_handover(motion: TaskMotion, choice: HandoverChoice, q_start: dict, wid
 
 def _make_way_strategies(motion: TaskMotion, choice: HandoverChoice, q_start: dict, width_start: dict,
                          object_points: np.ndarray, up) -> list[Strategy]:
-    """The secondary's turns out of the primary's way (``MAKE_WAY_TURNS``, in order). Each attempt returns
+    """The receiver's turns out of the giver's way (``MAKE_WAY_TURNS``, in order). Each attempt returns
     the whole plan: the turn (a free motion from a start free in the map), then the hand-over from there."""
-    w_sec = width_start["secondary"]
+    g, r = choice.giver, choice.taker
+    w_sec = width_start[r]
 
     def attempt(turn):
-        q_aside = np.asarray(q_start["secondary"], dtype=np.float64).copy()
+        q_aside = np.asarray(q_start[r], dtype=np.float64).copy()
         q_aside[0] += turn
         if not motion.robot.lower[0] <= q_aside[0] <= motion.robot.upper[0]:
             raise PlanFailure("reach", "the turn is beyond the base joint's limits")
-        q_from = {**q_start, "secondary": q_aside}
-        with motion.context("map", openings={"primary": width_start["primary"], "secondary": w_sec}):
+        q_from = {**q_start, r: q_aside}
+        with motion.context("map", openings={g: width_start[g], r: w_sec}):
             why = motion.problems(q_from)
             if why:
-                raise PlanFailure("validation", f"the turned secondary meets the scene: {why[0]}")
-            way = motion.plan_free(["secondary"], q_start, [{"secondary": q_aside}])["secondary"]
+                raise PlanFailure("validation", f"the turned {r} meets the scene: {why[0]}")
+            way = motion.plan_free([r], q_start, [{r: q_aside}])[r]
         rest = _handover(motion, choice, q_from, width_start, object_points, up, ["reach"])
         plan = TaskPlan({a: np.asarray(q, float) for a, q in q_start.items()}, dict(width_start), info=rest.info)
-        plan.add(Phase("make-way", {"secondary": _jt(way.times, way.q, w_sec)},
-                       f"the secondary turns {np.degrees(turn):+.0f} deg about its base, out of the primary's way",
+        plan.add(Phase("make-way", {r: _jt(way.times, way.q, w_sec)},
+                       f"the {r} turns {np.degrees(turn):+.0f} deg about its base, out of the {g}'s way",
                        "ompl"))
         for ph in rest.phases:
             plan.add(ph)
@@ -574,8 +586,10 @@ class _Handover:
     up: np.ndarray  # (3,) up in b1
     q_start: dict
     width_start: dict
-    pick: GraspSpec = field(init=False)  # the primary's grasp where the object lies
-    gt: GraspSpec = field(init=False)  # the primary's grasp at the transfer pose
+    g: str = field(init=False)  # the giver arm's name
+    r: str = field(init=False)  # the receiver arm's name
+    pick: GraspSpec = field(init=False)  # the giver's grasp where the object lies
+    gt: GraspSpec = field(init=False)  # the giver's grasp at the transfer pose
     rec: GraspSpec = field(init=False)  # the receiver's grasp at the transfer pose
     wg: float = field(init=False)  # m: the primary's opening to pick
     wr: float = field(init=False)  # m: the receiver's opening
@@ -586,6 +600,7 @@ class _Handover:
 
     def __post_init__(self):
         c = self.choice
+        self.g, self.r = c.giver, c.taker
         self.pick, self.gt, self.rec = c.pick, c.giver_transfer, c.receiver
         self.wg, self.wr = self.pick.width, self.rec.width
         self.wl = min(self.gt.width, self.wg)  # the giver lets go opening this far (no wider than it picked)
@@ -607,7 +622,7 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
                             "receiver": {"T_b1_g": H.rec.T_b1_g, "width": H.wr}}}
     q_grasp = _handover_pick(H, plan, at)
     at.append("lift")
-    attach = ("primary", q_grasp, object_points)
+    attach = (H.g, q_grasp, object_points)
     carry_pad = _handover_lift(H, plan, attach)
     at.append("transfer")
     pre_rec = _handover_transfer(H, plan, attach, carry_pad)
@@ -615,20 +630,20 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
     pre_rec = _receive_reach(H, plan, attach, pre_rec)
     at.append("receive-approach")
     q, _ = plan.end_state()
-    with motion.context("cut", openings={"primary": H.cw_g, "secondary": H.wr}):
-        tr = motion.cartesian({"secondary": (pre_rec, H.rec.T_b1_g)}, q)["secondary"]
-    plan.add(Phase("receive-approach", {"secondary": _jt(tr.times, tr.q, H.wr)}, "secondary's straight approach",
+    with motion.context("cut", openings={H.g: H.cw_g, H.r: H.wr}):
+        tr = motion.cartesian({H.r: (pre_rec, H.rec.T_b1_g)}, q)[H.r]
+    plan.add(Phase("receive-approach", {H.r: _jt(tr.times, tr.q, H.wr)}, f"{H.r}'s straight approach",
                    "cartesian"))
     q, _ = plan.end_state()
-    plan.add(Phase("receive-grasp", {"secondary": _still(q["secondary"], H.wr, CLOSED)},
-                   "secondary closes (force limited)", "gripper"))
+    plan.add(Phase("receive-grasp", {H.r: _still(q[H.r], H.wr, CLOSED)},
+                   f"{H.r} closes (force limited)", "gripper"))
     _giver_lets_go(H, plan, at)
     # where each closed gripper's fingers rest on the object (the whole-plan validation takes them there,
     # as the phases above were planned): the primary from its grasp to its release, the secondary after
-    held_by = {"primary": ("grasp", "lift", "transfer", "receive-reach", "receive-approach", "receive-grasp", "release"),
-               "secondary": ("receive-grasp", "release", "retreat", "home", "hold")}
+    held_by = {H.g: ("grasp", "lift", "transfer", "receive-reach", "receive-approach", "receive-grasp", "release"),
+               H.r: ("receive-grasp", "release", "retreat", "home", "hold")}
     for ph in plan.phases:
-        ph.resting = {a: w for a, w in (("primary", H.cw_g), ("secondary", H.cw_r))
+        ph.resting = {a: w for a, w in ((H.g, H.cw_g), (H.r, H.cw_r))
                       if ph.name in held_by[a] and w > 0}
     return plan
 
@@ -637,22 +652,22 @@ def _handover_pick(H: _Handover, plan: TaskPlan, at: list) -> np.ndarray:
     """1-3. The primary reaches, approaches and closes on the object. Returns its grasp configuration."""
     motion, pick = H.motion, H.pick
     pre_pick = _pre(motion, pick)
-    with motion.context("map", openings={"primary": H.wg, "secondary": H.width_start["secondary"]}):
-        sols = _approachable(motion, "primary", _goal_ik(motion, "primary", pre_pick,
-                                                         [pick.q_pre, H.q_start["primary"], pick.q]),
+    with motion.context("map", openings={H.g: H.wg, H.r: H.width_start[H.r]}):
+        sols = _approachable(motion, H.g, _goal_ik(motion, H.g, pre_pick,
+                                                         [pick.q_pre, H.q_start[H.g], pick.q]),
                              pre_pick, pick.T_b1_g)
-        goals = [{"primary": s} for s in sols[:4]]
-        tr = motion.plan_free(["primary"], H.q_start, goals)["primary"]
-    plan.add(Phase("reach", {"primary": _jt(tr.times, tr.q, _ramp(tr.times, H.width_start["primary"], H.wg))},
-                   "primary to its pre-grasp, opening", "ompl"))
+        goals = [{H.g: s} for s in sols[:4]]
+        tr = motion.plan_free([H.g], H.q_start, goals)[H.g]
+    plan.add(Phase("reach", {H.g: _jt(tr.times, tr.q, _ramp(tr.times, H.width_start[H.g], H.wg))},
+                   f"{H.g} to its pre-grasp, opening", "ompl"))
     at.append("approach")
     q, _ = plan.end_state()
-    with motion.context("cut", openings={"primary": H.wg}):
-        tr = motion.cartesian({"primary": (pre_pick, pick.T_b1_g)}, q)["primary"]
-    plan.add(Phase("approach", {"primary": _jt(tr.times, tr.q, H.wg)}, "straight approach", "cartesian"))
+    with motion.context("cut", openings={H.g: H.wg}):
+        tr = motion.cartesian({H.g: (pre_pick, pick.T_b1_g)}, q)[H.g]
+    plan.add(Phase("approach", {H.g: _jt(tr.times, tr.q, H.wg)}, "straight approach", "cartesian"))
     q, _ = plan.end_state()
-    q_grasp = q["primary"].copy()
-    plan.add(Phase("grasp", {"primary": _still(q_grasp, H.wg, CLOSED)}, "primary closes (force limited)", "gripper"))
+    q_grasp = q[H.g].copy()
+    plan.add(Phase("grasp", {H.g: _still(q_grasp, H.wg, CLOSED)}, f"{H.g} closes (force limited)", "gripper"))
     return q_grasp
 
 
@@ -670,12 +685,12 @@ def _handover_lift_strategies(H: _Handover, q: dict, dirs: list, attach: tuple, 
         problems = motion.object_clear(moves, up=H.up)
         if problems:
             raise PlanFailure("validation", problems[0])
-        with motion.context("cut", openings={"primary": H.cw_g}):
-            tr = motion.cartesian({"primary": (pick.T_b1_g, moves[-1] @ pick.T_b1_g)}, q)["primary"]
+        with motion.context("cut", openings={H.g: H.cw_g}):
+            tr = motion.cartesian({H.g: (pick.T_b1_g, moves[-1] @ pick.T_b1_g)}, q)[H.g]
         # the carry is planned with the object attached, kept clear by the free-motion margin: an
         # object lifted beside a taller neighbour still touches it, so lift higher
-        with motion.context("attached", openings={"primary": H.cw_g}, attach=attach, object_padding=pad):
-            why = motion.problems({"primary": tr.q[-1], "secondary": q["secondary"]})
+        with motion.context("attached", openings={H.g: H.cw_g}, attach=attach, object_padding=pad):
+            why = motion.problems({H.g: tr.q[-1], H.r: q[H.r]})
         if why:
             raise PlanFailure("validation", f"lifted {dist * 100:.0f} cm ({how}), the carried object is "
                                             f"still too close to the scene: {why[0]}")
@@ -710,8 +725,8 @@ def _handover_lift(H: _Handover, plan: TaskPlan, attach: tuple) -> float:
     # motion against the map) rather than attached (it would touch the table at once); in the directions
     # of _lift_directions, higher, or less far (the carry that follows is planned with the object
     # attached, clear of the table).
-    dirs = _lift_directions(motion, H.pick.T_b1_g, H.object_points, H.up)
-    with motion.context("cut", openings={"primary": H.cw_g}):
+    dirs = _lift_directions(motion, H.pick.T_b1_g, H.object_points, H.up, _base_b1(motion, H.g))
+    with motion.context("cut", openings={H.g: H.cw_g}):
         if motion.problems(q):  # the closed fingers meet points the segment left out: the object's own
             motion.cut_grasped(H.pick.T_b1_g, H.wg)
     try:
@@ -723,7 +738,7 @@ def _handover_lift(H: _Handover, plan: TaskPlan, attach: tuple) -> float:
                           ) from None
     if name == "reduced object padding":
         plan.info["carry_padding_m"] = carry_pad
-    plan.add(Phase("lift", {"primary": _jt(tr.times, tr.q, CLOSED)}, f"lifted {dist * 100:.0f} cm ({how})",
+    plan.add(Phase("lift", {H.g: _jt(tr.times, tr.q, CLOSED)}, f"lifted {dist * 100:.0f} cm ({how})",
                    "cartesian"))
     return carry_pad
 
@@ -732,29 +747,29 @@ def _handover_transfer(H: _Handover, plan: TaskPlan, attach: tuple, carry_pad: f
     """5. The carry to the transfer pose (object attached to the primary). Returns the receiver's pre-grasp."""
     motion, rec = H.motion, H.rec
     q, _ = plan.end_state()
-    w0 = H.width_start["secondary"]
+    w0 = H.width_start[H.r]
     pre_rec = _pre(motion, rec)
-    with motion.context("attached", openings={"primary": H.cw_g, "secondary": w0}, attach=attach,
+    with motion.context("attached", openings={H.g: H.cw_g, H.r: w0}, attach=attach,
                         object_padding=carry_pad):
-        sols = _goal_ik(motion, "primary", H.gt.T_b1_g, [H.gt.q, q["primary"]])
-        if not all(any("secondary" in w for w in motion.problems({**q, "primary": s_})) for s_ in sols[:4]):
-            tr = motion.plan_free(["primary"], q, [{"primary": s} for s in sols[:4]])["primary"]
-            plan.add(Phase("transfer", {"primary": _jt(tr.times, tr.q, CLOSED)}, "object carried to the transfer pose",
+        sols = _goal_ik(motion, H.g, H.gt.T_b1_g, [H.gt.q, q[H.g]])
+        if not all(any(H.r in w for w in motion.problems({**q, H.g: s_})) for s_ in sols[:4]):
+            tr = motion.plan_free([H.g], q, [{H.g: s} for s in sols[:4]])[H.g]
+            plan.add(Phase("transfer", {H.g: _jt(tr.times, tr.q, CLOSED)}, "object carried to the transfer pose",
                            "ompl"))
             return pre_rec
         # the transfer pose brings the object against the waiting secondary: it goes to its pre-grasp
         # in the same motion (out of the way, to where it takes the object over)
         # (opening on the way: checked at the wider of its two openings)
-        with motion.context("attached", openings={"primary": H.cw_g, "secondary": max(w0, H.wr)}, attach=attach,
+        with motion.context("attached", openings={H.g: H.cw_g, H.r: max(w0, H.wr)}, attach=attach,
                             object_padding=carry_pad):
-            sols_r = _goal_ik(motion, "secondary", pre_rec, [rec.q_pre, H.q_start["secondary"], rec.q])
-            goals = [{"primary": s1, "secondary": s2} for s1 in sols[:3] for s2 in sols_r[:3]]
+            sols_r = _goal_ik(motion, H.r, pre_rec, [rec.q_pre, H.q_start[H.r], rec.q])
+            goals = [{H.g: s1, H.r: s2} for s1 in sols[:3] for s2 in sols_r[:3]]
             goals = [g_ for g_ in goals if not motion.problems(g_)] or goals[:1]
-            tr = motion.plan_free(["primary", "secondary"], q, goals)
-        ts = tr["secondary"].times
-        plan.add(Phase("transfer", {"primary": _jt(tr["primary"].times, tr["primary"].q, CLOSED),
-                                    "secondary": _jt(ts, tr["secondary"].q, _ramp(ts, w0, H.wr))},
-                       "object carried to the transfer pose; the secondary to its pre-grasp, out of its way",
+            tr = motion.plan_free([H.g, H.r], q, goals)
+        ts = tr[H.r].times
+        plan.add(Phase("transfer", {H.g: _jt(tr[H.g].times, tr[H.g].q, CLOSED),
+                                    H.r: _jt(ts, tr[H.r].q, _ramp(ts, w0, H.wr))},
+                       f"object carried to the transfer pose; the {H.r} to its pre-grasp, out of its way",
                        "ompl"))
     return pre_rec
 
@@ -775,16 +790,16 @@ def _receiver_pregrasp_strategies(H: _Handover, q: dict, attach: tuple, pre_rec:
     back = back / max(np.linalg.norm(back), 1e-9)
 
     def attempt(extra, pad):
-        with motion.context("attached", openings={"primary": H.cw_g, "secondary": H.wr}, attach=attach,
+        with motion.context("attached", openings={H.g: H.cw_g, H.r: H.wr}, attach=attach,
                             object_padding=pad):
             T_pre = pre_rec.copy()
             T_pre[:3, 3] += extra * back
-            seeds = [q["secondary"], rec.q_pre, H.q_start["secondary"], rec.q]
-            cand = _approachable(motion, "secondary", _goal_ik(motion, "secondary", T_pre, seeds), T_pre, rec.T_b1_g)
+            seeds = [q[H.r], rec.q_pre, H.q_start[H.r], rec.q]
+            cand = _approachable(motion, H.r, _goal_ik(motion, H.r, T_pre, seeds), T_pre, rec.T_b1_g)
             # the goals open (checked at the receiver's opening); the way there keeps the gripper as it was:
             # the transfer pose may bring the object near the waiting secondary, whose fingers, opened where
             # it stands, would touch it before it moves
-            why = [motion.problems({**q, "secondary": s_}) for s_ in cand]
+            why = [motion.problems({**q, H.r: s_}) for s_ in cand]
         ok = [s_ for s_, w in zip(cand, why) if not w]
         if not ok:
             if not fallback:
@@ -807,9 +822,9 @@ def _receive_reach_strategies(H: _Handover, q: dict, attach: tuple, sols: np.nda
     motion = H.motion
 
     def plan_to_goals(opening):
-        with motion.context("attached", openings={"primary": H.cw_g, "secondary": opening}, attach=attach,
+        with motion.context("attached", openings={H.g: H.cw_g, H.r: opening}, attach=attach,
                             object_padding=pad):
-            return motion.plan_free(["secondary"], q, [{"secondary": s} for s in sols[:4]])["secondary"]
+            return motion.plan_free([H.r], q, [{H.r: s} for s in sols[:4]])[H.r]
 
     def open_there():
         tr = plan_to_goals(w0)
@@ -827,7 +842,7 @@ def _receive_reach_strategies(H: _Handover, q: dict, attach: tuple, sols: np.nda
 def _receive_reach(H: _Handover, plan: TaskPlan, attach: tuple, pre_rec: np.ndarray) -> np.ndarray:
     """6. The secondary to its pre-grasp at the transfer pose. Returns the pre-grasp used."""
     q, w_now = plan.end_state()
-    w0 = w_now["secondary"]  # as it was (or opened to the receiver's width on a two-arm transfer)
+    w0 = w_now[H.r]  # as it was (or opened to the receiver's width on a two-arm transfer)
     fallback: list = []
     try:
         _, (sols, pre_used, pad_used) = first_success(_receiver_pregrasp_strategies(H, q, attach, pre_rec, fallback))
@@ -839,7 +854,7 @@ def _receive_reach(H: _Handover, plan: TaskPlan, attach: tuple, pre_rec: np.ndar
         _, jt = first_success(_receive_reach_strategies(H, q, attach, sols, pad_used, w0))
     except StrategiesFailed as e:
         raise e.last from None
-    plan.add(Phase("receive-reach", {"secondary": jt}, "secondary to its pre-grasp at the transfer pose, opening",
+    plan.add(Phase("receive-reach", {H.r: jt}, f"{H.r} to its pre-grasp at the transfer pose, opening",
                    "ompl"))
     return pre_used
 
@@ -848,25 +863,25 @@ def _giver_lets_go(H: _Handover, plan: TaskPlan, at: list) -> None:
     """9-11. The primary lets go, backs off and goes home (where it can); the secondary holds (checked)."""
     motion = H.motion
     q, _ = plan.end_state()
-    plan.add(Phase("release", {"primary": _still(q["primary"], CLOSED, H.wl)}, "primary opens", "gripper"))
+    plan.add(Phase("release", {H.g: _still(q[H.g], CLOSED, H.wl)}, f"{H.g} opens", "gripper"))
     q, _ = plan.end_state()
     held_pts = H.object_points @ H.choice.T_move[:3, :3].T + H.choice.T_move[:3, 3]
-    held = ("secondary", q["secondary"], held_pts)
+    held = (H.r, q[H.r], held_pts)
     at.append("retreat")
-    tr, dist, how = _giver_retreat(motion, H.gt, q, held, H.up, {"primary": H.wl, "secondary": H.cw_r})
-    plan.add(Phase("retreat", {"primary": _jt(tr.times, tr.q, H.wl)},
-                   f"primary backs off {dist * 100:.0f} cm ({how})", "cartesian"))
+    tr, dist, how = _giver_retreat(motion, H.gt, q, held, H.up, {H.g: H.wl, H.r: H.cw_r})
+    plan.add(Phase("retreat", {H.g: _jt(tr.times, tr.q, H.wl)},
+                   f"{H.g} backs off {dist * 100:.0f} cm ({how})", "cartesian"))
     at.append("home")
     # the primary goes back to its start; the object, now in the secondary's gripper, is an obstacle
     q, _ = plan.end_state()
-    with motion.context("attached", openings={"primary": H.wl, "secondary": H.cw_r}, attach=held):
-        home_blocked = motion.problems({"primary": H.q_start["primary"], "secondary": q["secondary"]})
+    with motion.context("attached", openings={H.g: H.wl, H.r: H.cw_r}, attach=held):
+        home_blocked = motion.problems({H.g: H.q_start[H.g], H.r: q[H.r]})
         if not home_blocked:
-            tr = motion.plan_free(["primary"], q, [{"primary": H.q_start["primary"]}])["primary"]
+            tr = motion.plan_free([H.g], q, [{H.g: H.q_start[H.g]}])[H.g]
     if home_blocked:  # the object, now held by the secondary, is where the primary started: it stays backed off
-        plan.info["home"] = f"skipped: the primary's start pose meets the held object ({home_blocked[0]})"
+        plan.info["home"] = f"skipped: the {H.g}'s start pose meets the held object ({home_blocked[0]})"
     else:
-        plan.add(Phase("home", {"primary": _jt(tr.times, tr.q, H.wl)}, "primary back to its start pose", "ompl"))
+        plan.add(Phase("home", {H.g: _jt(tr.times, tr.q, H.wl)}, f"{H.g} back to its start pose", "ompl"))
     q, _ = plan.end_state()
-    plan.add(Phase("hold", {"secondary": _jt([0.0, HOLD_S], np.stack([q["secondary"]] * 2), CLOSED)},
-                   f"secondary holds the object alone for {HOLD_S:g} s", "hold", check="handover"))
+    plan.add(Phase("hold", {H.r: _jt([0.0, HOLD_S], np.stack([q[H.r]] * 2), CLOSED)},
+                   f"{H.r} holds the object alone for {HOLD_S:g} s", "hold", check=HANDOVER_CHECK[H.r]))

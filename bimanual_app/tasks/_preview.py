@@ -34,6 +34,7 @@ CHECKS = {
     "joint-lift": ({"primary", "secondary"}, False, 0.10, 2.0),
     "lift": ({"primary"}, False, 0.10, 2.0),
     "handover": ({"secondary"}, True, 0.10, 2.0),
+    "handover-to-primary": ({"primary"}, True, 0.10, 2.0),  # a hand-over the secondary gives
 }
 
 
