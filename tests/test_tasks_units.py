@@ -518,3 +518,31 @@ def test_task_motion_names_its_problem_list_problems():
     from bimanual_app.tasks import TaskMotion
 
     assert callable(TaskMotion.problems) and not hasattr(TaskMotion, "valid")
+
+
+def test_preview_bodies_are_the_grasping_stages_primitives_where_it_determined_one():
+    """grasps.json's box and cylinder objects become that box / the upright cylinder in it (what the grasps
+    were planned on); a free-form object, or one without a shape, stays the body of its points."""
+    from types import SimpleNamespace
+
+    from bimanual_app.tasks._preview import primitive_bodies, scene_bodies
+    from tests._task_fixtures import box_surface_points, table_points
+
+    T = np.eye(4)
+    T[:3, 3] = [0.3, 0.1, 0.05]
+    objs = [{"id": 0, "shape": {"kind": "box", "fit": 0.99}, "T_b1_box": T, "extent": [0.3, 0.2, 0.1]},
+            {"id": 1, "shape": {"kind": "cylinder", "fit": 0.98}, "T_b1_box": T, "extent": [0.06, 0.056, 0.12]},
+            {"id": 2, "shape": {"kind": "free-form", "fit": 0.7}, "T_b1_box": T, "extent": [0.05, 0.05, 0.05]},
+            {"id": 3, "T_b1_box": T, "extent": [0.05, 0.05, 0.05]}]
+    prim = primitive_bodies({"objects": objs}, [0, 1, 2, 3])
+    assert set(prim) == {0, 1}
+    assert prim[0].kind == "box" and np.allclose(prim[0].size, [0.3, 0.2, 0.1]) and np.allclose(prim[0].T_b1_o, T)
+    assert prim[1].kind == "cylinder" and np.allclose(prim[1].size, [0.058, 0.058, 0.12])
+    assert primitive_bodies({"objects": objs}, [2, 3]) == {}
+    # in a task's bodies: the box object is the grasps' box, the other one the body of its points
+    pts = np.vstack([table_points(), box_surface_points([0.3, 0.1, 0.05], [0.26, 0.18, 0.1], 1500),
+                     box_surface_points([0.3, -0.2, 0.03], [0.04, 0.04, 0.06], 800, seed=3)])
+    labels = np.r_[np.full(3000, -1), np.zeros(1500, int), np.ones(800, int)]
+    inputs = SimpleNamespace(points=pts, labels=labels, seg_extras={}, grasps={"objects": objs[:1]})
+    _, shapes, _ = scene_bodies(inputs)
+    assert np.allclose(shapes[0].size, [0.3, 0.2, 0.1]) and shapes[1].size[0] < 0.06

@@ -27,7 +27,7 @@ from bimanual_app.simulation import (
 
 from ._plan import TaskPlan
 
-__all__ = ["PreviewResult", "preview_plan", "scene_bodies", "CHECKS"]
+__all__ = ["PreviewResult", "preview_plan", "scene_bodies", "primitive_bodies", "CHECKS"]
 
 # check name -> (arms that must hold, exclusive, rise m, hold s)
 CHECKS = {
@@ -72,10 +72,35 @@ class PreviewResult:
                 "world": "ground truth" if self.world_truth else "estimate", "warnings": self.warnings}
 
 
+def primitive_bodies(grasps: dict, ids: list[int]) -> dict:
+    """Object id -> BodyShape for the objects of ``ids`` whose shape the grasping stage determined
+    (grasps.json ``shape.kind`` box or cylinder): its gravity-aligned box (``T_b1_box``, ``extent``), or the
+    upright cylinder in that box (diameter: the mean of the box's two horizontal edges). The grasps were
+    planned on that primitive; a hull of the same points is rounder where the cloud's edges are noisy, and
+    a push pair planned on a box's faces lets a rounded hull slip (docs/tasks.md, *One shape*)."""
+    from bimanual_app.simulation import box_shape
+
+    out = {}
+    for o in grasps.get("objects") or []:
+        if not isinstance(o, dict) or int(o.get("id", -1)) not in ids:
+            continue
+        kind = (o.get("shape") or {}).get("kind") if isinstance(o.get("shape"), dict) else None
+        if kind not in ("box", "cylinder") or o.get("T_b1_box") is None or o.get("extent") is None:
+            continue
+        T = np.asarray(o["T_b1_box"], dtype=np.float64).reshape(4, 4)
+        size = np.asarray(o["extent"], dtype=np.float64).reshape(3)
+        if kind == "cylinder":
+            d = float(size[:2].mean())
+            size = np.array([d, d, size[2]])
+        out[int(o["id"])] = box_shape(T, size, kind=kind)
+    return out
+
+
 def scene_bodies(inputs, ids: list[int] | None = None) -> tuple:
     """``(table, shapes, warnings)`` of a task's inputs: the table plane (``table_from_segments``) and the
-    estimated bodies (``estimated_shapes``: object id -> BodyShape, and why objects are left out) of the
-    objects ``ids`` (default: every segmented object). Each is computed once and kept on the inputs: the
+    estimated bodies (object id -> BodyShape, and why objects are left out) of the objects ``ids`` (default:
+    every segmented object): the grasping stage's primitive where it determined one (``primitive_bodies``),
+    else ``estimated_shapes`` of the object's points. Each is computed once and kept on the inputs: the
     planner and each preview of a task use the same."""
     cache = getattr(inputs, "_scene_bodies", None)
     if cache is None:
@@ -87,8 +112,10 @@ def scene_bodies(inputs, ids: list[int] | None = None) -> tuple:
     todo = [int(i) for i in ids if int(i) not in done]
     if todo:
         est, warnings = estimated_shapes(inputs.points, inputs.labels, table, ids=todo)
+        prim = primitive_bodies(getattr(inputs, "grasps", None) or {}, todo)
+        est.update(prim)
         for i in todo:
-            done[i] = (est.get(i), [w for w in warnings if w.startswith(f"object {i}:")])
+            done[i] = (est.get(i), [] if i in prim else [w for w in warnings if w.startswith(f"object {i}:")])
     shapes = {int(i): done[int(i)][0] for i in ids if done[int(i)][0] is not None}
     return table, shapes, [w for i in ids for w in done[int(i)][1]]
 
