@@ -379,7 +379,7 @@ def report(results: list[dict], modes: list[str], tasks: list[str], total: float
          f"set (seeds {HELDOUT_SEEDS[0]}..{HELDOUT_SEEDS[-1]}, never looked at scene by scene; the targets are "
          f"judged on it) and the tuning set (seeds {TUNING_SEEDS[0]}..{TUNING_SEEDS[-1]}, the scenes the code was "
          "tuned on). Success = the plan also succeeds physically in the ground-truth world (true objects, true "
-         "secondary base): object up 10 cm and held 2 s by both grippers (joint grasp) / by the secondary only "
+         "secondary base): object up 10 cm and held 2 s by both grippers (joint grasp) / by the receiving arm only "
          "after the release (hand-over). Planning failures count as failures. Each rate with its 95 % Wilson "
          "score interval. The oracle row has the ground-truth transforms and the true objects (segments from "
          "the renders' masks): what it fails are the planners' limits (e.g. objects no arm reaches); "

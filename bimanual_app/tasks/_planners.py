@@ -16,7 +16,8 @@ Hand-over: (the secondary turns aside about its base when it stands in the prima
 approaches, closes on the object, lifts 6 cm, carries it (object attached)
 to the transfer pose -> secondary reaches its pre-grasp (object attached to the primary, as an obstacle)
 -> straight approach -> closes -> primary opens -> retreats 8 cm along its approach -> hold 2.3 s
-(checked: held by the secondary only).
+(checked: held by the secondary only). The giver may also be the secondary (``HandoverChoice.giver``): the same
+phases with the arms' roles swapped, the hold then checked as held by the primary only.
 
 Each fallback ladder (a push pair's squeeze depth, the joint lift's end poses in score order, a push pair's back-off, the
 secondary's make-way turn, the hand-over's lift and carry padding, the receiver's pre-grasp and its way

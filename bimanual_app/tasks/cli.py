@@ -3,8 +3,8 @@ and (only with ``--execute hardware`` and a passing preview) run it on the two P
 
 joint-grasp: both arms grasp one large object and lift it together; the object's motion is planned and
 both grippers follow it (IK at every waypoint; arms, and the carried object, collision-checked).
-handover: the primary picks a small object and brings it to the transfer pose, the secondary grasps it,
-the primary releases and retreats.
+handover: one arm picks a small object and brings it to the transfer pose, the other grasps it, the giver
+releases and retreats; the primary gives where it can, else the secondary (as grasps.json says).
 
 Missing earlier results are produced first, in-process: calibrate -> segment -> grasp (under --work).
 Writes OUT/task.json (outcome, chosen object and why, plans per phase, timings, approval record),
