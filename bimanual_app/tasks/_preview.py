@@ -72,12 +72,15 @@ class PreviewResult:
                 "world": "ground truth" if self.world_truth else "estimate", "warnings": self.warnings}
 
 
-def primitive_bodies(grasps: dict, ids: list[int]) -> dict:
+def primitive_bodies(grasps: dict, ids: list[int], table=None) -> dict:
     """Object id -> BodyShape for the objects of ``ids`` whose shape the grasping stage determined
     (grasps.json ``shape.kind`` box or cylinder): its gravity-aligned box (``T_b1_box``, ``extent``), or the
     upright cylinder in that box (diameter: the mean of the box's two horizontal edges). The grasps were
     planned on that primitive; a hull of the same points is rounder where the cloud's edges are noisy, and
-    a push pair planned on a box's faces lets a rounded hull slip (docs/tasks.md, *One shape*)."""
+    a push pair planned on a box's faces lets a rounded hull slip (docs/tasks.md, *One shape*). With the
+    ``table`` (a TablePlane), the box reaches down to it, as the bodies of points are extruded to it: the box
+    spans the points the cameras saw, and an object's lower part hidden behind a neighbour would otherwise
+    leave it floating (it falls in the preview, away from where the grasps were planned)."""
     from bimanual_app.simulation import box_shape
 
     out = {}
@@ -89,11 +92,27 @@ def primitive_bodies(grasps: dict, ids: list[int]) -> dict:
             continue
         T = np.asarray(o["T_b1_box"], dtype=np.float64).reshape(4, 4)
         size = np.asarray(o["extent"], dtype=np.float64).reshape(3)
+        if table is not None:
+            T, size = _down_to_table(T, size, table)
         if kind == "cylinder":
             d = float(size[:2].mean())
             size = np.array([d, d, size[2]])
         out[int(o["id"])] = box_shape(T, size, kind=kind)
     return out
+
+
+def _down_to_table(T_b1_box: np.ndarray, size: np.ndarray, table) -> tuple[np.ndarray, np.ndarray]:
+    """The gravity-aligned box (4, 4), (3,) with its bottom face (along its z, the table's normal) moved onto
+    the table plane."""
+    T, size = T_b1_box.copy(), size.copy()
+    z = T[:3, 2] * np.sign(T[:3, 2] @ table.normal)
+    if abs(z @ table.normal) < 0.95:  # not standing on the table: left as it is
+        return T, size
+    gap = float(table.height(T[:3, 3] - 0.5 * size[2] * z))  # the bottom's height above the table
+    if size[2] + gap > 0:
+        size[2] += gap
+        T[:3, 3] -= 0.5 * gap * z
+    return T, size
 
 
 def scene_bodies(inputs, ids: list[int] | None = None) -> tuple:
@@ -112,7 +131,7 @@ def scene_bodies(inputs, ids: list[int] | None = None) -> tuple:
     todo = [int(i) for i in ids if int(i) not in done]
     if todo:
         est, warnings = estimated_shapes(inputs.points, inputs.labels, table, ids=todo)
-        prim = primitive_bodies(getattr(inputs, "grasps", None) or {}, todo)
+        prim = primitive_bodies(getattr(inputs, "grasps", None) or {}, todo, table)
         est.update(prim)
         for i in todo:
             done[i] = (est.get(i), [] if i in prim else [w for w in warnings if w.startswith(f"object {i}:")])
