@@ -1,4 +1,5 @@
-"""05 - Handover: the primary arm picks a small object and hands it to the secondary arm (PyBullet preview).
+"""05 - Handover: one arm picks a small object and hands it to the other (the primary gives where it can,
+else the secondary), checked in the PyBullet preview.
 
     .venv/bin/python examples/05_handover.py [SCENE]
 """

@@ -292,6 +292,7 @@ def test_a_hand_over_the_secondary_gives_plans_as_the_mirror_of_the_primarys():
     for name in ("receive-reach", "receive-approach", "receive-grasp", "hold"):
         assert moved[name] == {"primary"}, (name, moved)
     assert plan.phases[-1].check == "handover-to-primary" and "primary holds" in plan.phases[-1].note
+    assert (plan.info["giver"], plan.info["receiver"]) == ("secondary", "primary")  # task.json plan.info
     motion.validate_timeline(plan.timeline(), plan.opening_spans())
 
 

@@ -616,7 +616,7 @@ def _handover(motion, choice, q_start, width_start, object_points, up, at) -> Ta
     up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=np.float64)
     plan = TaskPlan({a: np.asarray(q, float) for a, q in q_start.items()}, dict(width_start))
     H = _Handover(motion, choice, object_points, up, q_start, width_start)
-    plan.info = {"score": choice.score, **choice.info, "T_move": choice.T_move,
+    plan.info = {"score": choice.score, **choice.info, "giver": H.g, "receiver": H.r, "T_move": choice.T_move,
                  "transfer_centre_b1": (choice.T_move @ np.r_[object_points.mean(0), 1.0])[:3],
                  "grasps": {"pick": {"T_b1_g": H.pick.T_b1_g, "width": H.wg},
                             "giver_transfer": {"T_b1_g": H.gt.T_b1_g},
