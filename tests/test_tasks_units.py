@@ -140,6 +140,17 @@ def test_carried_object_may_slide_past_a_touching_neighbour_but_not_hit_others()
     motion2 = TaskMotion(load_robot("piper"), FIX_T_B1_B2, np.vstack([points, shelf]), obj, obj)
     assert motion2.object_clear(lift(0.10))  # an overhang above it stops the lift
     assert motion2.object_clear(lift(0.04)) == []  # (below it, not)
+    # a taller neighbour against the +x face whose near side no camera saw: only its top rim, 2 mm over the
+    # object's estimated edge (a fit a few mm off), is in the map; the lift slides past it (SIDE_TOLERANCE)
+    rng = np.random.default_rng(4)
+    rim = np.c_[rng.uniform(0.318, 0.36, 400), rng.uniform(-0.02, 0.02, 400), np.full(400, 0.13)]
+    motion3 = TaskMotion(load_robot("piper"), FIX_T_B1_B2, np.vstack([table_points(), obj, rim]), obj, obj,
+                         cut_radius=0.0005)
+    assert motion3.object_clear(lift(0.10)) == []
+    deep = rim - [0.012, 0.0, 0.0]  # 1.4 cm over it: a real overhang
+    motion4 = TaskMotion(load_robot("piper"), FIX_T_B1_B2, np.vstack([table_points(), obj, deep]), obj, obj,
+                         cut_radius=0.0005)
+    assert motion4.object_clear(lift(0.10))
 
 
 def test_segment_stage_uses_the_scene_masks_when_there_are_some(tmp_path):
