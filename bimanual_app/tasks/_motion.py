@@ -421,7 +421,8 @@ class TaskMotion:
         """Problems of the carried object along rigid motions ``T_moves`` (K,4,4) (applied to its points):
         any object point nearer than ``OBJECT_CLEARANCE`` to a point of the map (object cut out) once it
         rose ``skip_rise`` (the distance field finds the candidates, a k-d tree decides); points that start
-        that near (where the object touches a neighbour) are left to the physics preview."""
+        that near (where the object touches a neighbour) are left to the physics preview. The object's sides
+        are taken ``SIDE_TOLERANCE`` in first (its estimated body is that far off)."""
         up = np.array([0.0, 0.0, 1.0]) if up is None else up
         P = _sides_in(self.object_points, up, SIDE_TOLERANCE)
         smap = self.cut_map
