@@ -110,6 +110,12 @@ class PlanParams:
     retry_factor: int = 4
     unseen_radius: float = 0.0
 
+    def __post_init__(self):
+        bad = [a for a in self.handover_givers if a not in ("primary", "secondary")]
+        if bad or len(set(self.handover_givers)) != len(self.handover_givers):
+            raise ValueError(f"PlanParams.handover_givers: {tuple(self.handover_givers)!r} must name 'primary' and/or "
+                             "'secondary', each once, in order of preference")
+
 
 @dataclass
 class ObjectPlan:

@@ -145,6 +145,8 @@ def test_the_secondary_gives_where_the_primary_reaches_no_pick():
     assert receiver.ok(h.receiver["T_b1_g"][None])[0]
     d = plan_to_dict(plan)["objects"][0]["handover"]
     assert d["giver"]["arm"] == "secondary" and d["receiver"]["arm"] == "primary"
+    with pytest.raises(ValueError, match="handover_givers"):
+        PlanParams(handover_givers=("primary", "left"))
     only_primary = PlanParams(retry_factor=1, handover_givers=("primary",))
     op1 = plan_grasps(scene_cloud(P, L), arms=arms, T_b1_b2=T12, params=only_primary).objects[0]
     assert op1.handover is None and NO_HANDOVER not in op1.notes  # not searched: the primary reaches no pick
