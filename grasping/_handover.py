@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import heapq
 import itertools
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -202,7 +202,7 @@ class _Roles:
     giver: Arm
     receiver: Arm
     T_b1_b2: np.ndarray
-    check: object = None
+    check: Callable[[np.ndarray, float, np.ndarray, float], tuple[bool, str]] | None = None
 
 
 def _roles(arms: dict[str, Arm], giver: str, check: TwoArmCheck | None) -> _Roles:
