@@ -102,6 +102,25 @@ def test_exact_poses_with_noisy_maps_lean_on_the_poses(synth_none):
         e_res = np.linalg.norm(T_res[:3, 3] - T_true[:3, 3])
         e_plain = np.linalg.norm(T_plain[:3, 3] - T_true[:3, 3])
         assert e_res < max(1.2 * e_plain, 5e-4), (e_res, e_plain)
+    # the loop's scatter is far under its floor: the held-out check measures it on its own scale, on which the
+    # maps' pull is no gain, and the exact poses stand
+    pm = res.info["point_maps"]
+    assert not pm["accepted"] and np.allclose(res.T_e1_c1, plain.T_e1_c1, atol=1e-9), pm["reason"]
+
+
+def test_the_held_out_check_measures_a_floored_loop_on_its_own_scale():
+    from calibration._absolute import SIGMA_FLOOR_ROT, SIGMA_FLOOR_TRANS
+    from calibration._estimate import _guard_loop_sigma
+    from calibration._terms import CostTerm
+
+    groups = np.tile([0, 0, 0, 1, 1, 1], 4)
+    raw = np.where(groups == 0, 2e-6, 3e-7)  # rad, m: exact poses, numerically
+    term = CostTerm("kinematic loop", lambda th: raw, None, groups, np.array([SIGMA_FLOOR_ROT, SIGMA_FLOOR_TRANS]))
+    assert np.allclose(_guard_loop_sigma(term, 3), [2e-6, 3e-7])
+    term.sigma = np.array([0.01, SIGMA_FLOOR_TRANS])  # rotation noisy (not floored): its level stays
+    assert np.allclose(_guard_loop_sigma(term, 3), [0.01, 3e-7])
+    term.residuals = lambda th: np.zeros(len(groups))  # no scatter at all: a thousandth of the floor
+    assert np.allclose(_guard_loop_sigma(term, 3), [0.01, 1e-3 * SIGMA_FLOOR_TRANS])
 
 
 
