@@ -187,10 +187,15 @@ class Handover:
 
     @property
     def receiver_arm(self) -> str:
-        return "secondary" if self.giver_arm == "primary" else "primary"
+        return other_arm(self.giver_arm)
 
 
 ARM_NAMES = ("primary", "secondary")
+
+
+def other_arm(arm: str) -> str:
+    """The other one of ``ARM_NAMES``."""
+    return ARM_NAMES[1 - ARM_NAMES.index(arm)]
 
 
 @dataclass
@@ -210,7 +215,7 @@ def _roles(arms: dict[str, Arm], giver: str, check: TwoArmCheck | None) -> _Role
     configurations, so a hand-over from the secondary swaps its arguments."""
     if giver not in ARM_NAMES:
         raise ValueError(f"giver must be one of {ARM_NAMES}, not {giver!r}")
-    receiver = ARM_NAMES[1 - ARM_NAMES.index(giver)]
+    receiver = other_arm(giver)
     swapped = None
     if check is not None and giver == "secondary":
         def swapped(q_g, w_g, q_r, w_r):

@@ -30,7 +30,7 @@ from ._antipodal import GraspSet, SamplerParams, sample_grasps
 from ._arms import Arm, ArmGrasps, TwoArmCheck, lifting_arm, reachable_by_group, reachable_grasps
 from ._collision import GripperCollider, SceneOctree
 from ._gripper import GripperModel
-from ._handover import Handover, HandoverParams, handover_givers, plan_handovers
+from ._handover import ARM_NAMES, Handover, HandoverParams, handover_givers, plan_handovers
 from ._inputs import SceneCloud
 from ._joint import JointPair, PairLift, joint_pairs, spread_order
 from ._objects import (
@@ -103,7 +103,7 @@ class PlanParams:
     joint_for_all: bool = False
     joint_min_extent: float = 0.15
     handover: bool = True
-    handover_givers: tuple[str, ...] = ("primary", "secondary")
+    handover_givers: tuple[str, ...] = ARM_NAMES
     max_joint_pairs: int = 5
     joint_lift_check: float = 0.12
     workspace_radius: float = 1.0
@@ -111,7 +111,7 @@ class PlanParams:
     unseen_radius: float = 0.0
 
     def __post_init__(self):
-        bad = [a for a in self.handover_givers if a not in ("primary", "secondary")]
+        bad = [a for a in self.handover_givers if a not in ARM_NAMES]
         if bad or len(set(self.handover_givers)) != len(self.handover_givers):
             raise ValueError(f"PlanParams.handover_givers: {tuple(self.handover_givers)!r} must name 'primary' and/or "
                              "'secondary', each once, in order of preference")
@@ -237,9 +237,10 @@ def plan_object(k: int, cloud: SceneCloud, support: Support, gripper: GripperMod
             t1 = time.perf_counter()
             _joint(plan, support, gripper, collider, others, arms, check, params, long_side)
             plan.timings["joint"] = time.perf_counter() - t1
-        if plan.mode == "single" and params.handover and any(len(plan.reach.get(a, [])) for a in params.handover_givers):
+        givers = [a for a in params.handover_givers if len(plan.reach.get(a, []))]  # those reaching a pick
+        if plan.mode == "single" and params.handover and givers:
             t1 = time.perf_counter()
-            _handover(plan, support, gripper, collider, arms, check, params, cloud.points[~mask], blocked)
+            _handover(plan, support, gripper, collider, arms, check, params, cloud.points[~mask], blocked, givers)
             plan.timings["handover"] = time.perf_counter() - t1
     elif arms:
         plan.notes.append("secondary arm unknown (no T_b1_b2): no joint grasps or hand-over")
@@ -406,10 +407,10 @@ def _joint_pairs(plan: ObjectPlan, support: Support, collider: GripperCollider, 
 
 def _handover(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: GripperCollider,
               arms: dict[str, Arm], check: TwoArmCheck | None, params: PlanParams, obstacles_b1: np.ndarray,
-              blocked: SceneOctree) -> None:
+              blocked: SceneOctree, givers: list[str]) -> None:
     """A hand-over: receiver grasps sampled on the object in the air (its bottom closed, from every side), then
-    the givers of ``params.handover_givers`` in turn (those that reach a pick of the object) until one finds
-    a hand-over (``_handover_from``)."""
+    the ``givers`` in turn (those of ``params.handover_givers`` that reach a pick of the object) until one
+    finds a hand-over (``_handover_from``)."""
     closed = closed_geometry(plan.geometry, support)
     # every collision-free candidate, not only the best-scored: those cluster at the object's centre, where
     # the giver's fingers are, and the receiver needs grasps away from them (measured on the demo's mug and
@@ -423,7 +424,7 @@ def _handover(plan: ObjectPlan, support: Support, gripper: GripperModel, collide
     receiver_blocked = SceneOctree(unseen, params.octree_resolution)
     plan.free_grasps, _ = sample_grasps(closed, support, gripper, collider, receiver_blocked, free_params)
     found: list = []
-    for giver in (a for a in params.handover_givers if a in arms and len(plan.reach.get(a, []))):
+    for giver in givers:
         found = _handover_from(plan, giver, support, gripper, collider, arms, check, params, obstacles_b1, blocked,
                                closed)
         if found:
@@ -485,7 +486,7 @@ def _set_handover(plan: ObjectPlan, found: list) -> None:
 
 
 def _redraw_where_none(plans: list[ObjectPlan], log: Callable[[str], None] = _log_default,
-                       givers: tuple[str, ...] = ("primary", "secondary")) -> None:
+                       givers: tuple[str, ...] = ARM_NAMES) -> None:
     """For each of ``givers`` in turn (``PlanParams.handover_givers``): when no object has a hand-over from it
     or from a giver before it, each object whose search from it found none searches again with fresh grasp
     draws (``_redraw_handovers``); a hand-over found so replaces one from a later giver. A scene that has one

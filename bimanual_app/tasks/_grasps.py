@@ -16,6 +16,8 @@ import numpy as np
 from bimanual_app.io_utils import InputError, Problem
 from bimanual_app.transforms import check_T
 
+from ._plan import ARMS
+
 __all__ = ["GraspSpec", "JointChoice", "HandoverChoice", "joint_candidates", "handover_candidates", "choose"]
 
 
@@ -90,9 +92,6 @@ class HandoverChoice:
     @property
     def taker(self) -> str:
         return self.receiver.arm
-
-
-ARMS = ("primary", "secondary")
 
 
 def _arr(d: dict, key: str, shape=None):

@@ -129,12 +129,6 @@ def _retreat_directions(T_b1_g: np.ndarray, up: np.ndarray) -> list[tuple[str, n
     return out
 
 
-def _base_b1(motion: TaskMotion, arm: str) -> np.ndarray:
-    """(3,) the arm's base origin in b1."""
-    world = motion.setup.world
-    return world.arms[world.arm_index(arm)].T_b1_b[:3, 3].copy()
-
-
 def _lift_directions(motion: TaskMotion, T_b1_g: np.ndarray, object_points: np.ndarray, up: np.ndarray,
                      base_b1: np.ndarray | None = None, near: float = 0.03) -> list[tuple[str, np.ndarray]]:
     """A picked object's lift directions (unit (3,) in b1), in order of preference.
@@ -726,7 +720,7 @@ def _handover_lift(H: _Handover, plan: TaskPlan, attach: tuple) -> float:
     # motion against the map) rather than attached (it would touch the table at once); in the directions
     # of _lift_directions, higher, or less far (the carry that follows is planned with the object
     # attached, clear of the table).
-    dirs = _lift_directions(motion, H.pick.T_b1_g, H.object_points, H.up, _base_b1(motion, H.g))
+    dirs = _lift_directions(motion, H.pick.T_b1_g, H.object_points, H.up, motion.setup.T_b1_b(H.g)[:3, 3])
     with motion.context("cut", openings={H.g: H.cw_g}):
         if motion.problems(q):  # the closed fingers meet points the segment left out: the object's own
             motion.cut_grasped(H.pick.T_b1_g, H.wg)

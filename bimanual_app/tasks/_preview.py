@@ -25,6 +25,7 @@ from bimanual_app.simulation import (
     truth_shapes,
 )
 
+from ._grasps import shape_kind
 from ._plan import TaskPlan
 
 __all__ = ["PreviewResult", "preview_plan", "scene_bodies", "primitive_bodies", "CHECKS"]
@@ -87,7 +88,7 @@ def primitive_bodies(grasps: dict, ids: list[int], table=None) -> dict:
     for o in grasps.get("objects") or []:
         if not isinstance(o, dict) or int(o.get("id", -1)) not in ids:
             continue
-        kind = (o.get("shape") or {}).get("kind") if isinstance(o.get("shape"), dict) else None
+        kind = shape_kind(o)
         if kind not in ("box", "cylinder") or o.get("T_b1_box") is None or o.get("extent") is None:
             continue
         T = np.asarray(o["T_b1_box"], dtype=np.float64).reshape(4, 4)
