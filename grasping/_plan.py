@@ -59,6 +59,10 @@ class PlanParams:
         is never refused by the task's check of the same straight approach. With 3 mm / 2 mm, fingers that
         pass 3-5 mm over the table were accepted here and then touched the task's map.
     reach_tries / reach_want: grasps checked by each arm's reach filter, and enough reachable ones to stop.
+    push_tries_per_face / push_want_per_face: each face's push contacts are checked for reach until
+        ``push_want_per_face`` pass, or ``push_tries_per_face`` were tried (None: all of them). All by default:
+        the check is closed-form IK (about 0.5 ms a contact), and an arm pushing the face of a large box a
+        hand's width from its own base reaches 1-2 % of that face's contacts, often none of the first 30.
     push_spread: push contacts are checked for reach best first, but first those this far (m) from every
         better one on the same face (``spread_order``): the reachable contacts, and the pairs of them, are
         then several places on each face, not one place found again a few millimetres away.
@@ -92,7 +96,7 @@ class PlanParams:
     handover_params: HandoverParams = HandoverParams()
     octree_resolution: float = 0.005
     reach_tries: int = 40
-    push_tries_per_face: int = 30
+    push_tries_per_face: int | None = None
     push_spread: float = 0.03
     push_want_per_face: int = 4
     reach_want: int = 10
@@ -382,8 +386,9 @@ def _joint_pairs(plan: ObjectPlan, support: Support, collider: GripperCollider, 
             to_base -= np.outer(to_base @ support.up, support.up)
             to_base /= np.maximum(np.linalg.norm(to_base, axis=1, keepdims=True), 1e-9)
             facing = np.einsum("nk,nk->n", -push.extra["squeeze"], to_base) > 0.3
-            plan.push_reach[name] = reachable_by_group(push, arm, push.extra["face"], params.push_tries_per_face,
-                                                       params.push_want_per_face, prefer=facing)
+            tries = len(push) if params.push_tries_per_face is None else params.push_tries_per_face
+            plan.push_reach[name] = reachable_by_group(push, arm, push.extra["face"], tries, params.push_want_per_face,
+                                                       prefer=facing)
         plan.stats["push_reach"] = {n: {"reachable": len(a), "tried": a.tried, "why_not": a.reasons}
                                     for n, a in plan.push_reach.items()}
         pp, plan.stats["joint_push"] = joint_pairs(geo, support, plan.push_reach["primary"], plan.push_reach["secondary"],

@@ -539,3 +539,24 @@ def test_handover_ranking_scored_lazily_keeps_the_order_of_scoring_everything(mo
     assert len(keys) > 20 and keys == sorted(keys) and len({k[0] for k in keys}) > 1  # several cost bins
     assert orders[1] == orders[7] == orders[10 ** 9]
     assert found[1] == found[7] == found[10 ** 9] == handover(1)  # read lazily by the search, too
+
+
+@pytest.mark.parametrize("tries, found", [(30, False), (None, True)])
+def test_push_contacts_an_arm_reaches_in_few_places_are_all_checked(tries, found):
+    """An arm pushing the face of a large box a hand's width from its base reaches it only steeply tilted and
+    high up (a few of a face's ~500 contacts, ranked low by the score). Every contact is checked for reach by
+    default (``push_tries_per_face=None``), so the pair is found; with the first 30 of each face it is not."""
+    from grasping import Arm, callable_filter
+
+    def steep_and_high(T):  # tilted 55 degrees down, fingertips in the top part of the face
+        tilt = np.degrees(np.arcsin(np.clip(-T[:, 2, 2], -1, 1)))
+        return (np.abs(tilt - 55.0) < 1.0) & (T[:, 2, 3] > 0.08)
+
+    f = callable_filter(steep_and_high)
+    arms = {"primary": Arm("primary", np.eye(4), f), "secondary": Arm("secondary", T12, f)}
+    P, L = make_cloud([Obj("box", (0.3, 0.0), (0.16, 0.32, 0.10), 0.1)], table_size=(0.8, 0.8))
+    plan = plan_grasps(scene_cloud(P, L), arms=arms, T_b1_b2=T12,
+                       params=PlanParams(handover=False, retry_factor=1, push_tries_per_face=tries))
+    op = plan.objects[0]
+    assert op.mode == "joint"
+    assert bool(op.joint) == found, op.notes
