@@ -2,7 +2,7 @@
 
 Two kinds of pair:
 
-- ``push``: two push contacts (``_push``) on opposite faces of the object's box, approaches opposed, at
+- ``push``: two push contacts (``_push``) on opposite faces of the object's box, squeezing towards each other, at
   heights within ``max_height_gap``: the grippers squeeze the object between them along a line through
   its centre. For objects wider than the stroke.
 - ``pinch``: two antipodal grasps towards the two ends of a long object, on opposite sides of the centre
@@ -130,9 +130,14 @@ def _horiz(v: np.ndarray, up: np.ndarray) -> np.ndarray:
 
 def _push_terms(primary: ArmGrasps, secondary: ArmGrasps, i: int, j: int, c1: np.ndarray, c2: np.ndarray,
                 up: np.ndarray, d: np.ndarray, sep: float, mid: np.ndarray,
-                max_height_gap: float) -> tuple[float, float] | None:
-    """(imbalance, score adjustment) of two push contacts, or None when they do not make a squeeze: opposite
-    faces, at one height (else the squeeze twists the object), approaches opposed."""
+                max_height_gap: float) -> tuple[float, float, int] | None:
+    """(imbalance, score adjustment, tier) of two push contacts, or None when they do not make a squeeze:
+    opposite faces, at one height (else the squeeze twists the object). Each gripper presses along its face's
+    inward normal (``extra["squeeze"]``), and those are opposed for opposite faces; the approaches need not
+    be: each is turned from its own face's normal (a swivel, or aimed away from its arm's base, ``_push``),
+    and two arms on either side of an object off the line between their bases reach it turned opposite
+    ways. Pairs whose approaches are not opposed come after all those whose are (tier 1): they are what the
+    arms reach where nothing else is, not a better squeeze."""
     f1, f2 = primary.grasps.extra["face"][i], secondary.grasps.extra["face"][j]
     if f1[0] != f2[0] or f1[1] != -f2[1]:
         return None  # not opposite faces
@@ -140,17 +145,16 @@ def _push_terms(primary: ArmGrasps, secondary: ArmGrasps, i: int, j: int, c1: np
     if dh > max_height_gap:
         return None  # not at one height: the squeeze would twist the object
     zh1, zh2 = _horiz(primary.grasps.T_b1_g[i, :3, 2], up), _horiz(secondary.grasps.T_b1_g[j, :3, 2], up)
-    if zh1 @ zh2 > -0.9 * np.linalg.norm(zh1) * np.linalg.norm(zh2):
-        return None  # approaches not opposed
+    tier = int(zh1 @ zh2 > -0.9 * np.linalg.norm(zh1) * np.linalg.norm(zh2))
     # for a squeeze the lateral offset of the line from the centre matters, not where along it
     dn = d / sep
     imb = float(np.linalg.norm(mid - (mid @ dn) * dn)) / (0.5 * sep)
-    return imb, -(0.5 * dh / max_height_gap * 0.2)  # a squeeze line off the horizontal twists a little
+    return imb, -(0.5 * dh / max_height_gap * 0.2), tier  # a squeeze line off the horizontal twists a little
 
 
 def _lift_terms(geo: ObjectGeometry, c1: np.ndarray, c2: np.ndarray, sep: float, imb: float,
-                min_spread: float) -> tuple[float, float] | None:
-    """(imbalance, score adjustment) of two grasps of a long object (contacts ``c1``, ``c2`` (3,)), or None
+                min_spread: float) -> tuple[float, float, int] | None:
+    """(imbalance, score adjustment, tier 0) of two grasps of a long object (contacts ``c1``, ``c2`` (3,)), or None
     when they are on one side of its centre or too close together to keep it level."""
     axis = geo.T_b1_box[:3, 0]
     s1, s2 = (c1 - geo.centre) @ axis, (c2 - geo.centre) @ axis
@@ -158,13 +162,14 @@ def _lift_terms(geo: ObjectGeometry, c1: np.ndarray, c2: np.ndarray, sep: float,
         return None  # same side of the centre
     if abs(s1 - s2) < min_spread * geo.extent[0]:
         return None  # too close together to keep a long object level
-    return imb, 0.2 * min(1.0, sep / (0.8 * geo.extent[0]))  # far apart: steadier
+    return imb, 0.2 * min(1.0, sep / (0.8 * geo.extent[0])), 0  # far apart: steadier
 
 
 def _ranked_pairs(geo: ObjectGeometry, up: np.ndarray, primary: ArmGrasps, secondary: ArmGrasps, c1: np.ndarray,
                   c2: np.ndarray, max_imbalance: float, max_height_gap: float, min_spread: float,
                   stats: dict) -> list[tuple]:
-    """Every balanced pair as ``(score, i, j, imbalance, separation)``, best first."""
+    """Every balanced pair as ``(score, i, j, imbalance, separation)``, best first (within tiers, see
+    ``_push_terms``)."""
     kind = primary.grasps.kind
     cand = []
     for i in range(len(primary)):
@@ -179,16 +184,16 @@ def _ranked_pairs(geo: ObjectGeometry, up: np.ndarray, primary: ArmGrasps, secon
                      else _lift_terms(geo, c1[i], c2[j], sep, imb, min_spread))
             if terms is None:
                 continue
-            imb, adjust = terms
+            imb, adjust, tier = terms
             stats["candidates"] += 1
             if imb > max_imbalance:
                 continue
             stats["balanced"] += 1
             score = 0.5 * (primary.grasps.score[i] + secondary.grasps.score[j]) - 0.5 * imb
             score += adjust
-            cand.append((score, i, j, imb, sep))
-    cand.sort(key=lambda c: -c[0])
-    return cand
+            cand.append((score, i, j, imb, sep, tier))
+    cand.sort(key=lambda c: (c[5], -c[0]))
+    return [c[:5] for c in cand]
 
 
 def joint_pairs(geo: ObjectGeometry, support: Support, primary: ArmGrasps, secondary: ArmGrasps,

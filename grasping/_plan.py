@@ -352,7 +352,8 @@ def _joint(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: 
     """
     geo = plan.geometry
     plan.stats["push"] = {}
-    push = push_contacts(geo, support, gripper, collider, others, params.push, plan.stats["push"])
+    bases = np.array([a.T_b1_b[:3, 3] for a in arms.values()]) if arms else None
+    push = push_contacts(geo, support, gripper, collider, others, params.push, plan.stats["push"], bases)
     if len(push) and params.push_spread > 0:  # the reach budget goes to several places on each face
         push = push.take(spread_order(push.extra["contact"], push.extra["face"], params.push_spread))
     plan.push = push

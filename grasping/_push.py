@@ -50,6 +50,12 @@ class PushParams:
         against 2 at 80 degrees.
     swivels: approach turns about the vertical away from the face normal (radians): an arm beside the face
         rather than in front of it reaches it turned; the squeeze stays along the face normal.
+    aim_max: with the arms' bases given (``push_contacts``' ``bases_b1``), each face is also tried with its
+        approach aimed straight away from each base (horizontally), where that is within this angle of the
+        face normal. Close to its own base a Piper reaches a pose only with the approach in the vertical
+        plane through the base (its wrist bends out of that plane too little): 14-16 cm out, a face is
+        reached at tilts of 35-65 degrees with the approach within a few degrees of that plane, and at
+        none 10 degrees off it; a fixed set of swivels misses that.
     press: how far past the face the fingertips are driven to squeeze (the grasp's ``depth`` is -press).
     standoff: the gap kept for the collision check of the approach: the task's approach stops this far
         out from the face (``bimanual_app.tasks._planners.PUSH_STANDOFF``), and the squeeze starts there;
@@ -84,6 +90,7 @@ class PushParams:
     tilts: tuple[float, ...] = (np.deg2rad(-15.0), 0.0, np.deg2rad(20.0), np.deg2rad(40.0), np.deg2rad(55.0),
                                 np.deg2rad(70.0), np.deg2rad(80.0), np.deg2rad(88.0))
     swivels: tuple[float, ...] = (0.0, np.deg2rad(25.0), np.deg2rad(-25.0))
+    aim_max: float = np.deg2rad(35.0)
     leans: tuple[float, ...] = (np.deg2rad(25.0), np.deg2rad(-25.0))
     lean_min_tilt: float = np.deg2rad(50.0)
     press: float = 0.008
@@ -201,12 +208,33 @@ def _face(geo: ObjectGeometry, others: SceneOctree, axis: int, sign: float, para
                  SceneOctree(P[top], 0.002) if top.any() else None, planar, face_align, rect)
 
 
-def _frames(face: _Face, up: np.ndarray, params: PushParams) -> list[tuple[float, np.ndarray]]:
-    """``(tilt, R_b1_g (3, 3))`` of every gripper orientation tried on ``face``: tilts, swivels, leans, rolls."""
+def aimed_swivels(n: np.ndarray, t: np.ndarray, contact: np.ndarray, bases_b1: np.ndarray, max_angle: float,
+                  known: tuple[float, ...] = ()) -> list[float]:
+    """The swivels (rad, as ``PushParams.swivels``) that point the approach of a push at ``contact`` (3,)
+    horizontally straight away from each of ``bases_b1`` (B, 3), on the face with outward normal ``n`` and
+    horizontal tangent ``t`` (3,): those within ``max_angle`` of the normal and not within 1 degree of
+    ``known`` or of each other."""
+    out: list[float] = []
+    for base in np.asarray(bases_b1, dtype=np.float64).reshape(-1, 3):
+        aim = contact - base
+        h = np.array([aim @ n, aim @ t])  # its horizontal part, in the face's (n, t)
+        if np.linalg.norm(h) < 1e-6:
+            continue
+        # the approach's horizontal direction is -(cos(sw) n + sin(sw) t); aimed away from the base it is aim
+        sw = float(np.arctan2(-h[1], -h[0]))
+        if abs(sw) <= max_angle and all(abs(sw - k) > np.deg2rad(1.0) for k in (*known, *out)):
+            out.append(sw)
+    return out
+
+
+def _frames(face: _Face, up: np.ndarray, params: PushParams, aimed: tuple[float, ...] = ()
+            ) -> list[tuple[float, np.ndarray]]:
+    """``(tilt, R_b1_g (3, 3))`` of every gripper orientation tried on ``face``: tilts, swivels (and the
+    ``aimed`` ones), leans, rolls."""
     n, t = face.n, face.t
     frames = []
     for tilt in params.tilts:
-        turns = [(sw, 0.0) for sw in params.swivels]
+        turns = [(sw, 0.0) for sw in (*params.swivels, *aimed)]
         if tilt >= params.lean_min_tilt:
             turns += [(0.0, ln) for ln in params.leans]
         for swivel, lean in turns:
@@ -272,11 +300,14 @@ def _pads(geo: ObjectGeometry, face: _Face, tips: list[np.ndarray], R: np.ndarra
 
 
 def _face_rows(geo: ObjectGeometry, support: Support, face: _Face, tips: list[np.ndarray], all_corners: np.ndarray,
-               cone_cos: float, params: PushParams, st: dict) -> list[tuple]:
+               cone_cos: float, params: PushParams, st: dict, bases_b1: np.ndarray | None = None) -> list[tuple]:
     """The candidates on ``face`` that pass the per-pose checks (pads on the face, gripper above the table),
-    as rows ``(T, face axis, face sign, height fraction, tilt, pad alignment, contact width, n, seen, contact)``."""
+    as rows ``(T, face axis, face sign, height fraction, tilt, pad alignment, contact width, n, seen, contact)``.
+    With ``bases_b1`` (B, 3), also the approaches aimed away from each base (``PushParams.aim_max``)."""
     up, ext, n = geo.T_b1_box[:3, 2], geo.extent, face.n
-    frames = _frames(face, up, params)
+    aimed = () if bases_b1 is None else tuple(aimed_swivels(n, face.t, geo.centre + face.offset * n, bases_b1,
+                                                              params.aim_max, params.swivels))
+    frames = _frames(face, up, params, aimed)
     tilts = np.array([tilt for tilt, _ in frames])
     R = np.stack([Rf for _, Rf in frames])  # (F, 3, 3)
     Rt = np.swapaxes(R, 1, 2)
@@ -391,8 +422,10 @@ def _scored(geo: ObjectGeometry, collider: GripperCollider, others: SceneOctree,
 
 
 def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, collider: GripperCollider,
-                  others: SceneOctree, params: PushParams = PushParams(), stats: dict | None = None) -> GraspSet:
+                  others: SceneOctree, params: PushParams = PushParams(), stats: dict | None = None,
+                  bases_b1: np.ndarray | None = None) -> GraspSet:
     """Push contacts on the four vertical faces of the object's box (kind ``"push"``), scored, best first.
+    ``bases_b1`` (B, 3): the arms' base positions, for approaches aimed away from them (``PushParams.aim_max``).
 
     ``depth`` holds -press; ``contact_width`` the object's width between this face and the opposite one;
     ``extra["face"]`` (n, 2) the box axis and side of the face; ``extra["squeeze"]`` (n, 3) the direction
@@ -417,7 +450,7 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
             if face is None:
                 continue
             tops[(axis, sign)] = face.top
-            rows += _face_rows(geo, support, face, tips, all_corners, cone_cos, params, st)
+            rows += _face_rows(geo, support, face, tips, all_corners, cone_cos, params, st, bases_b1)
     if not rows:
         return GraspSet.empty(geo.id, kind="push")
     T = np.stack([r[0] for r in rows])

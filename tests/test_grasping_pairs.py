@@ -560,3 +560,49 @@ def test_push_contacts_an_arm_reaches_in_few_places_are_all_checked(tries, found
     op = plan.objects[0]
     assert op.mode == "joint"
     assert bool(op.joint) == found, op.notes
+
+
+def test_aimed_swivels_point_the_approach_away_from_each_base():
+    """A push approach aimed at a face from a base points horizontally straight away from that base; a base
+    on the face's far side (more than ``max_angle`` off its normal) gets none, and a swivel already tried is
+    not added again."""
+    from grasping._push import aimed_swivels
+
+    up = np.array([0.0, 0.0, 1.0])
+    n = np.array([-1.0, 0.0, 0.0])  # the face looks back at the primary's base
+    t = np.cross(up, n)
+    contact = np.array([0.22, 0.06, 0.05])
+    bases = np.array([[0.0, 0.0, 0.0], [0.6, 0.0, 0.0]])
+    sws = aimed_swivels(n, t, contact, bases, np.deg2rad(35.0))
+    assert len(sws) == 1
+    z_h = -(np.cos(sws[0]) * n + np.sin(sws[0]) * t)
+    aim = (contact - bases[0])[:2] / np.linalg.norm((contact - bases[0])[:2])
+    assert np.allclose(z_h[:2], aim, atol=1e-9) and abs(z_h[2]) < 1e-12
+    assert aimed_swivels(n, t, contact, bases, np.deg2rad(35.0), known=(sws[0] + 0.01,)) == []
+
+
+@pytest.mark.parametrize("aim_max, found", [(0.0, False), (np.deg2rad(35.0), True)])
+def test_a_box_off_the_line_between_the_bases_is_squeezed_with_aimed_approaches(aim_max, found):
+    """Arms that reach a face only with the approach pointing straight away from their base (as a Piper
+    does a hand's width from its base), on a box 6 cm off the line between the bases: the faces' normals
+    are 15 degrees off those directions, so the pair is found only with the approaches aimed away from
+    each base, turned opposite ways (the squeeze stays along the faces' normals)."""
+    from grasping import Arm, PushParams, callable_filter
+
+    def radial(T):  # T_b_g (N, 4, 4) in the arm's base frame
+        zh, ph = T[:, :2, 2], T[:, :2, 3]
+        cos = np.einsum("nk,nk->n", zh, ph) / np.linalg.norm(zh, axis=1) / np.linalg.norm(ph, axis=1)
+        tilt = np.degrees(np.arcsin(np.clip(-T[:, 2, 2], -1, 1)))
+        return (cos > np.cos(np.deg2rad(3.0))) & (tilt > 30) & (tilt < 70)
+
+    f = callable_filter(radial)
+    arms = {"primary": Arm("primary", np.eye(4), f), "secondary": Arm("secondary", T12, f)}
+    P, L = make_cloud([Obj("box", (0.3, 0.06), (0.16, 0.32, 0.10), 0.0)], table_size=(0.8, 0.8))
+    plan = plan_grasps(scene_cloud(P, L), arms=arms, T_b1_b2=T12,
+                       params=PlanParams(handover=False, retry_factor=1, push=PushParams(aim_max=aim_max)))
+    op = plan.objects[0]
+    assert bool(op.joint) == found, op.notes
+    for pair in op.joint:
+        p_ag, s_ag = op.pair_grasps(pair)
+        sq1, sq2 = p_ag.grasps.extra["squeeze"][pair.i_primary], s_ag.grasps.extra["squeeze"][pair.i_secondary]
+        assert sq1 @ sq2 < -0.99

@@ -511,6 +511,29 @@ def test_joint_lift_falls_back_to_the_least_lift_at_the_top_of_the_reach(monkeyp
         plan_with_reach_up_to(0.10)
 
 
+def test_joint_place_is_the_lift_run_backwards_in_joint_space():
+    """The joint grasp sets the object down along its lift's own joint path, reversed: the same states in
+    reverse order (solved again from the top, the arms could leave on another IK branch and swing over)."""
+    from bimanual_app.planning import default_ready
+    from bimanual_app.robots import load_robot
+    from bimanual_app.tasks._motion import TaskMotion
+    from bimanual_app.tasks._planners import plan_joint_grasp
+    from tests._task_fixtures import BAR, FIX_T_B1_B2, _cloud, box_surface_points, fixture_grasps
+
+    robot = load_robot("piper")
+    pts, labels = _cloud()
+    obj = box_surface_points(BAR["centre"], BAR["size"], 1500, visible_only=False)
+    choice = joint_candidates(fixture_grasps(robot), "grasps.json")[0]
+    q0 = {"primary": default_ready(robot), "secondary": default_ready(robot)}
+    motion = TaskMotion(robot, FIX_T_B1_B2, pts, obj, pts[labels == 1], up=np.array([0.0, 0.0, 1.0]))
+    plan = plan_joint_grasp(motion, choice, q0, {"primary": 0.0, "secondary": 0.0})
+    phases = {ph.name: ph for ph in plan.phases}
+    for arm in ("primary", "secondary"):
+        lift, place = phases["lift"].trajectories[arm], phases["place"].trajectories[arm]
+        assert np.allclose(place.q, lift.q[::-1])
+        assert np.allclose(place.times, lift.times[-1] - lift.times[::-1])
+
+
 def test_giver_retreat_with_a_short_pre_grasp_is_a_plan_failure_with_a_reason():
     """A pre-grasp nearer than the least back-off gives a PlanFailure naming why (it was a TypeError)."""
     from bimanual_app.tasks._grasps import GraspSpec

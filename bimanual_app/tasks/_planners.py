@@ -69,6 +69,12 @@ def _jt(times, q, widths):
     return JointTrajectory(times, np.asarray(q, dtype=np.float64), w)
 
 
+def _reversed(tr, widths):
+    """A JointTrajectory run backwards (the same states in reverse order, on the same clock), at ``widths``."""
+    t = np.asarray(tr.times, dtype=np.float64)
+    return _jt(t[-1] - t[::-1], np.asarray(tr.q)[::-1], widths)
+
+
 def _ramp(times, w0, w1):
     """Widths from w0 to w1 linearly over ``times``."""
     t = np.asarray(times, dtype=np.float64)
@@ -304,17 +310,18 @@ def _joint_grasp(motion, choice, q_start, width_start, lift, up, at) -> TaskPlan
     at.append("squeeze")
     S = _joint_grip(P, plan, touch)
     at.append("lift")
-    T_moves = _joint_lift(P, plan, S, lift)
+    _joint_lift(P, plan, S, lift)
     # 5. hold (checked)
     q, _ = plan.end_state()
     plan.add(Phase("hold", {a: _jt([0.0, HOLD_S], np.stack([q[a], q[a]]), P.w_hold[a]) for a in ARMS},
                    f"held up for {HOLD_S:g} s", "hold", check="joint-lift"))
     at.append("place")
-    # 6. place, release, retreat
-    with motion.context("cut", openings=P.opening_hold):
-        tr = motion.cartesian({a: (T_moves @ S[a])[::-1] for a in ARMS}, q)
-    plan.add(Phase("place", {a: _jt(tr[a].times, tr[a].q, P.w_hold[a]) for a in ARMS},
-                   "object set back down", "cartesian"))
+    # 6. place: the lift's own joint path run backwards, the same poses in reverse (solved again from the top,
+    # the path could leave on another IK branch beside a wrist singularity and swing the arm over), then
+    # release, retreat
+    lifted = next(ph for ph in reversed(plan.phases) if ph.name == "lift").trajectories
+    plan.add(Phase("place", {a: _reversed(lifted[a], P.w_hold[a]) for a in ARMS}, "object set back down (the lift reversed)",
+                   "cartesian"))
     at.append("retreat")
     if P.push:
         _push_release(P, plan, S, pre)
