@@ -335,14 +335,16 @@ class ArmReach:
         keys = [(T_b_g[i].tobytes(), float(w[i]), None if rt is None else rt[i].tobytes(),
                  None if ho is None else ho[i].tobytes(), setting) for i in range(n)]
         cache = self._reach_cache
-        todo = [i for i, key in enumerate(keys) if key not in cache]
+        found = {i: cache[key] for i, key in enumerate(keys) if key in cache}  # taken before a clear below
+        todo = [i for i in range(n) if i not in found]
         if todo:
             if len(cache) + len(todo) > self.REACH_CACHE:
                 cache.clear()
             res = self._check(T_b_g[todo], w[todo], None if rt is None else rt[todo], None if ho is None else ho[todo])
             for j, i in enumerate(todo):
-                cache[keys[i]] = (res.ok[j], res.q[j].copy(), res.q_pre[j].copy(), res.flipped[j], res.reason[j])
-        rows = [cache[key] for key in keys]
+                found[i] = cache[keys[i]] = (res.ok[j], res.q[j].copy(), res.q_pre[j].copy(), res.flipped[j],
+                                             res.reason[j])
+        rows = [found[i] for i in range(n)]
         J = self.robot.nq_arm
         return ReachResult(np.array([r[0] for r in rows], dtype=bool), np.array([r[1] for r in rows]).reshape(n, J),
                            np.array([r[2] for r in rows]).reshape(n, J), np.array([r[3] for r in rows], dtype=bool),

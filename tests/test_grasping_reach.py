@@ -161,3 +161,19 @@ def test_a_grasp_checked_again_is_remembered_not_solved_again():
     n = len(calls)
     f.with_pregrasp(0.08)(T[None], np.array([0.05]))  # another approach line
     assert len(calls) > n
+
+
+def test_a_full_reach_cache_is_cleared_without_losing_the_grasps_it_held():
+    """A batch mixing remembered grasps with new ones that overflow the cache: the cache is cleared, and the
+    remembered grasps still get their outcome (they raised a KeyError once the push contacts were all
+    checked: a ground-truth bench scene filled the 4096 entries mid-batch)."""
+    from bimanual_app.robots import load_robot
+
+    f = ArmReach(load_robot("piper"), load_gripper("piper"))
+    f.REACH_CACHE = 2
+    T, other, new = _tilted(), _tilted(90.0), _tilted(45.0)
+    first = f(np.stack([T, other]), np.array([0.05, 0.05]))
+    again = f(np.stack([T, new, other]), np.array([0.05, 0.05, 0.05]))  # 2 remembered + 1 new > 2
+    assert again.ok[[0, 2]].tolist() == first.ok.tolist() and again.reason[2] == first.reason[1]
+    assert np.array_equal(again.q[0], first.q[0], equal_nan=True)
+    assert len(f._reach_cache) == 1  # cleared, then only the new grasp
