@@ -509,10 +509,11 @@ def _redraw_where_none(plans: list[ObjectPlan], log: Callable[[str], None] = _lo
             found = p.redraws[giver]()
             if found or p.handover is None:
                 _set_handover(p, found)
-            p.timings["handover_redraw"] = p.timings.get("handover_redraw", 0.0) + time.perf_counter() - t1
-            p.timings["total"] = p.timings.get("total", 0.0) + time.perf_counter() - t1
+            dt = time.perf_counter() - t1
+            p.timings["handover_redraw"] = p.timings.get("handover_redraw", 0.0) + dt
+            p.timings["total"] = p.timings.get("total", 0.0) + dt
             log(f"object {p.id}: no object had a hand-over from the {giver}; grasps drawn again: "
-                f"{'hand-over found' if found else 'none'} ({time.perf_counter() - t1:.2f} s)")
+                f"{'hand-over found' if found else 'none'} ({dt:.2f} s)")
 
 
 def _redraw_handovers(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: GripperCollider,

@@ -310,7 +310,7 @@ def _joint_grasp(motion, choice, q_start, width_start, lift, up, at) -> TaskPlan
     at.append("squeeze")
     S = _joint_grip(P, plan, touch)
     at.append("lift")
-    _joint_lift(P, plan, S, lift)
+    lifted = _joint_lift(P, plan, S, lift)
     # 5. hold (checked)
     q, _ = plan.end_state()
     plan.add(Phase("hold", {a: _jt([0.0, HOLD_S], np.stack([q[a], q[a]]), P.w_hold[a]) for a in ARMS},
@@ -319,7 +319,6 @@ def _joint_grasp(motion, choice, q_start, width_start, lift, up, at) -> TaskPlan
     # 6. place: the lift's own joint path run backwards, the same poses in reverse (solved again from the top,
     # the path could leave on another IK branch beside a wrist singularity and swing the arm over), then
     # release, retreat
-    lifted = next(ph for ph in reversed(plan.phases) if ph.name == "lift").trajectories
     plan.add(Phase("place", {a: _reversed(lifted[a], P.w_hold[a]) for a in ARMS}, "object set back down (the lift reversed)",
                    "cartesian"))
     at.append("retreat")
@@ -467,17 +466,19 @@ def _lift_name(c, i: int) -> str:
     return ", ".join(parts)
 
 
-def _joint_lift(P: _Pair, plan: TaskPlan, S: dict, lift: float) -> np.ndarray:
-    """4. Lift: the object's motion, both grippers follow it. Returns the object's motion (K, 4, 4)."""
+def _joint_lift(P: _Pair, plan: TaskPlan, S: dict, lift: float) -> dict:
+    """4. Lift: the object's motion, both grippers follow it. Returns the lift phase's trajectories (arm ->
+    JointTrajectory)."""
     q, _ = plan.end_state()
     try:
         _, (tr, T_moves, how, lift) = first_success(_lift_strategies(P, S, q, lift))
     except StrategiesFailed as e:
         raise e.first from None
-    plan.add(Phase("lift", {a: _jt(tr[a].times, tr[a].q, P.w_hold[a]) for a in ARMS},
-                   f"object lifted {lift * 100:.0f} cm ({how}), both grippers following it", "cartesian"))
+    lifted = {a: _jt(tr[a].times, tr[a].q, P.w_hold[a]) for a in ARMS}
+    plan.add(Phase("lift", lifted, f"object lifted {lift * 100:.0f} cm ({how}), both grippers following it",
+                   "cartesian"))
     plan.info["object_motion"] = {"lift_m": lift, "how": how, "T_move_end": T_moves[-1], "waypoints": len(T_moves)}
-    return T_moves
+    return lifted
 
 
 def _push_retreat_strategies(P: _Pair, U: dict, pre: dict, q: dict) -> list[Strategy]:

@@ -18,6 +18,7 @@ import numpy as np
 from bimanual_app.simulation import (
     HoldMonitor,
     Recorder,
+    box_shape,
     build_world,
     default_camera,
     estimated_shapes,
@@ -82,8 +83,6 @@ def primitive_bodies(grasps: dict, ids: list[int], table=None) -> dict:
     ``table`` (a TablePlane), the box reaches down to it, as the bodies of points are extruded to it: the box
     spans the points the cameras saw, and an object's lower part hidden behind a neighbour would otherwise
     leave it floating (it falls in the preview, away from where the grasps were planned)."""
-    from bimanual_app.simulation import box_shape
-
     out = {}
     for o in grasps.get("objects") or []:
         if not isinstance(o, dict) or int(o.get("id", -1)) not in ids:
