@@ -372,6 +372,13 @@ class ArmReach:
                     todo.append(i)
                 else:
                     why[i].append(res.message)
+            rows = [n * flip + i for i in todo]
+            blocked = self._screen_approaches(T_both[rows], np.array([first[r].q for r in rows]).reshape(-1, J),
+                                              None if rt is None else rt[todo], None if ho is None else ho[todo])
+            for i, msg in zip(todo, blocked):
+                if msg:  # every IK branch of the grasp shares this approach: none of them can pass
+                    why[i].append(msg)
+            todo = [i for i, msg in zip(todo, blocked) if not msg]
             for i in todo:
                 self._try_branch(out, why, i, T_both[n * flip + i], first[n * flip + i].q, flip, w, rt, ho)
             failed = [i for i in todo if not out.ok[i]]
@@ -385,6 +392,27 @@ class ArmReach:
                             break
         for i in np.nonzero(~out.ok)[0]:
             out.reason[i] = why[i][-1] if why[i] else "unreachable"
+        return out
+
+    def _screen_approaches(self, T: np.ndarray, q: np.ndarray, rt: np.ndarray | None, ho: np.ndarray | None
+                           ) -> list[str]:
+        """Per grasp T (K, 4, 4) with its first IK solution q (K, J): why its straight approach (``_approach``)
+        must fail, or '' when it may pass: the first pose along it with no closed-form IK branch within the
+        limits (``IKSolver.screen``), all grasps' poses in one batch. Most approaches of far push contacts
+        end there, and the step-by-step solve spends a failing descent on that pose first."""
+        paths = [_approach_poses(T[k], self.pregrasp, None if rt is None else rt[k], None if ho is None else ho[k])
+                 for k in range(len(T))]
+        if not paths:
+            return []
+        owner = np.concatenate([np.full(len(poses), k) for k, (poses, _) in enumerate(paths)])
+        why = self.solver.screen(np.concatenate([np.stack(poses) for poses, _ in paths]), q[owner])
+        if why is None:
+            return [""] * len(T)
+        out, start = [], 0
+        for poses, where in paths:
+            bad = next((f"{at}: {msg}" for at, msg in zip(where, why[start:start + len(poses)]) if msg), "")
+            out.append(bad)
+            start += len(poses)
         return out
 
     def _try_branch(self, out: ReachResult, why: list, i: int, T: np.ndarray, q: np.ndarray, flip: bool,

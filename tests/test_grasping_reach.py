@@ -177,3 +177,22 @@ def test_a_full_reach_cache_is_cleared_without_losing_the_grasps_it_held():
     assert again.ok[[0, 2]].tolist() == first.ok.tolist() and again.reason[2] == first.reason[1]
     assert np.array_equal(again.q[0], first.q[0], equal_nan=True)
     assert len(f._reach_cache) == 1  # cleared, then only the new grasp
+
+
+def test_the_approach_screen_changes_no_outcome(reach):
+    """Approaches with a pose no IK branch reaches are ruled out in one batch before the step-by-step solve
+    (``IKSolver.screen``); the outcomes (and solutions) equal those of the step-by-step check alone."""
+    robot, f = reach
+    rng = np.random.default_rng(5)
+    T = np.stack([_tilted(r) for r in rng.uniform(0, 360, 60)])
+    T[:, :3, 3] += rng.normal(0.0, [0.12, 0.12, 0.05], (60, 3))  # many out of reach, some only on the way back
+    screened = ArmReach(robot, load_gripper("piper"), _solver=f.solver)._check(T, np.full(60, 0.05), None, None)
+
+    class Unscreened(ArmReach):
+        def _screen_approaches(self, T, q, rt, ho):
+            return [""] * len(T)
+
+    plain = Unscreened(robot, load_gripper("piper"), _solver=f.solver)._check(T, np.full(60, 0.05), None, None)
+    assert screened.ok.tolist() == plain.ok.tolist() and 5 <= screened.ok.sum() <= 55
+    assert np.allclose(screened.q[screened.ok], plain.q[plain.ok]) and (screened.flipped == plain.flipped).all()
+    assert any("pre-grasp" in r and "closed-form branch" in r for r in screened.reason)

@@ -92,6 +92,22 @@ def test_solve_many_with_several_solutions_and_own_seeds(piper, solver):
         assert np.allclose(a.solutions, b.solutions, atol=1e-6)
 
 
+def test_screen_rules_out_only_targets_no_solve_reaches(piper, solver):
+    """``screen`` rules a target out only where no solve (from the current configuration, its closed-form
+    branches or the descent from the target's own configuration) finds a solution, and with the message
+    the failed solve gives; it rules out most of the unreachable ones."""
+    T = _targets(piper, 120, seed=21)
+    q_cur = piper.random_q(120, rng=22)
+    why = solver.screen(T, q_cur)
+    solved = [solver.solve(t, q_current=q, max_seeds=8) for t, q in zip(T, q_cur)]
+    assert all(r.success for r in solved[:60]) and not any(why[:60])  # FK targets: nothing ruled out
+    for w, r in zip(why, solved):
+        if w:
+            assert not r.success and r.message == w
+    failed = sum(not r.success for r in solved)
+    assert failed >= 20 and sum(bool(w) for w in why) >= 0.8 * failed
+
+
 def test_solve_many_rejects_bad_shapes(solver):
     with pytest.raises(ValueError):
         solver.solve_many(np.tile(np.eye(4), (3, 1, 1)), q_current=np.zeros((2, 6)))

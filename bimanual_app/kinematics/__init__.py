@@ -6,6 +6,8 @@ Public API:
     IKSolver.solve_many(T_targets (N,4,4), q_current=None | (J,) | (N,J), ..., screen=False) -> [IKResult] * N
              (the same results as N ``solve`` calls; all targets' seeds descend together, vectorised;
              ``screen``: targets with no closed-form branch within the limits fail without a descent)
+    IKSolver.screen(T_targets (N,4,4), hint (J,) | (N,J)) -> [str] * N | None   ('' where a closed-form branch
+             lies within the limits, else why no solve can succeed; None for a chain without a closed form)
     For an arm with a wrist centre (the Piper) the seeds after the current configuration are the closed-form
     branches (``_analytic``: ``wrist_chain``, ``ik_branches``), polished by the same damped least squares.
     solve_ik(robot, T_target, q_current=None, **kw) -> IKResult   (caches one IKSolver per robot and link)

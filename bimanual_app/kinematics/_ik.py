@@ -275,6 +275,25 @@ class IKSolver:
             self._run_lanes(lanes, seeds_of, runs, T, position_only, n_solutions)
         return self._results(T, qc, far, dist, runs, n_solutions, why)
 
+    def screen(self, T_targets: np.ndarray, hint: np.ndarray) -> list[str] | None:
+        """Which of the targets ``T_targets`` (N, 4, 4) have no solution, without any descent: per target ''
+        where a closed-form branch lies within the joint limits (a solve may still fail, e.g. from seeds that
+        do not converge), else why there is none -- the message a failed ``solve`` gives. ``hint`` (J,) or
+        (N, J): the free angles at singular poses (the caller's current configuration). None for a chain
+        without a closed form (nothing can be ruled out cheaply)."""
+        if self.chain is None:
+            return None
+        T = np.asarray(T_targets, dtype=np.float64).reshape(-1, 4, 4)
+        n, J = len(T), self.robot.nq_arm
+        qc = np.clip(np.broadcast_to(np.asarray(hint, dtype=np.float64), (n, J)), self.lower, self.upper)
+        dist = np.linalg.norm(T[:, :3, 3] - self._shoulder, axis=1)
+        far = dist > self.reach * 1.03 + 0.01
+        why = [self._far_message(T[i], dist[i]) if far[i] else "" for i in range(n)]
+        for i, (_, excess) in self._branches([i for i in range(n) if not far[i]], T, qc).items():
+            if not (excess == 0).any():
+                why[i] = _no_branch_message(excess)
+        return why
+
     def _results(self, T: np.ndarray, qc: np.ndarray, far: np.ndarray, dist: np.ndarray, runs: list,
                  n_solutions: int, why: list[str]) -> list[IKResult]:
         """One IKResult per target from its seeds' outcomes ``runs``; ``why[i]``, when not empty, is a failed
@@ -282,16 +301,19 @@ class IKSolver:
         out, J = [], self.robot.nq_arm
         for i in range(len(T)):
             if far[i]:
-                p = T[i, :3, 3]
                 out.append(IKResult(False, None, np.zeros((0, J)), np.inf, np.inf, 0, 0,
-                                    f"target {np.round(p, 3).tolist()} is {dist[i]:.3f} m from the shoulder; "
-                                    f"the arm reaches about {self.reach:.3f} m"))
+                                    self._far_message(T[i], dist[i])))
                 continue
             res = self._collect(runs[i], qc[i], n_solutions)
             if not res.success and why[i]:
                 res.message = why[i]
             out.append(res)
         return out
+
+    def _far_message(self, T: np.ndarray, dist: float) -> str:
+        """Why a target T (4, 4) ``dist`` metres from the shoulder fails at once."""
+        return (f"target {np.round(T[:3, 3], 3).tolist()} is {dist:.3f} m from the shoulder; "
+                f"the arm reaches about {self.reach:.3f} m")
 
     def _branches(self, todo: list[int], T: np.ndarray, qc: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
         """Target -> its closed-form branches (Q (8, J), excess (8,); ``_analytic.ik_branches``), for ``todo``."""
