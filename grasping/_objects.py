@@ -447,22 +447,13 @@ def _radial_normals(geo: ObjectGeometry, arc: _SideArc) -> bool:
 def _unseen_arc(arc: _SideArc) -> tuple[float, float] | None:
     """(start angle, span) of the unseen arc: the largest gap between the points' angles; None when the
     points do not cover an arc of CYL_ARC."""
-    ang, gaps = _angle_gaps(arc)
+    ang = np.sort(np.arctan2(arc.rel[:, 1], arc.rel[:, 0]))
+    gaps = np.diff(np.r_[ang, ang[0] + 2 * np.pi])
     k = int(np.argmax(gaps))
-    if not (CYL_ARC[0] <= 2 * np.pi - float(gaps[k]) <= CYL_ARC[1]):
+    covered = 2 * np.pi - float(gaps[k])
+    if not (CYL_ARC[0] <= covered <= CYL_ARC[1]):
         return None
     return ang[k], gaps[k]
-
-
-def _angle_gaps(arc: _SideArc) -> tuple[np.ndarray, np.ndarray]:
-    """The side points' angles about the circle's centre, sorted (K,), and the gap after each (K,)."""
-    ang = np.sort(np.arctan2(arc.rel[:, 1], arc.rel[:, 0]))
-    return ang, np.diff(np.r_[ang, ang[0] + 2 * np.pi])
-
-
-def _covered(arc: _SideArc) -> float:
-    """The angle (rad) of the circle the side points cover: 2 pi less the largest gap between them."""
-    return 2 * np.pi - float(np.max(_angle_gaps(arc)[1]))
 
 
 def _cylinder_box(geo: ObjectGeometry, out: ObjectGeometry, arc: _SideArc, up: np.ndarray) -> ObjectGeometry:
@@ -503,10 +494,7 @@ def complete_cylinder(geo: ObjectGeometry, support: Support, bottom: float = 0.0
     circle than on the box's sides and a closed top disc, ``CYL_MIN_TOP``), keep to it in every third of
     the height (``CYL_BAND_OFF``), the radius is a graspable cylinder's (``CYL_RADIUS``), the points cover
     an arc of ``CYL_ARC`` about the centre, and their normals point along the radius (``CYL_MIN_RADIAL``):
-    a box's corner or an irregular toy fits none of these. Returns ``geo`` unchanged otherwise. A cylinder
-    whose side points cover more than CYL_ARC gets no points, but its box too becomes the circle's square:
-    the points' percentiles fall short of a round object's extremes by millimetres, and one seen all round
-    through noise by more (a 72 mm can came out 69 x 61 mm, a chord the fingers could span).
+    a box's corner or an irregular toy fits none of these. Returns ``geo`` unchanged otherwise.
     """
     up = support.up
     arc = _side_arc(geo, support)
@@ -522,8 +510,8 @@ def complete_cylinder(geo: ObjectGeometry, support: Support, bottom: float = 0.0
     if not _radial_normals(geo, arc):
         return geo
     gap = _unseen_arc(arc)
-    if gap is None:  # seen all round: nothing to add, but the box is the circle's (see ``_cylinder_box``)
-        return _cylinder_box(geo, geo, arc, up) if _covered(arc) > CYL_ARC[1] else geo
+    if gap is None:
+        return geo
     step = geo.voxel / arc.r
     a_new = gap[0] + np.arange(step, gap[1] - 0.5 * step, step)
     zs = np.arange(bottom + 0.5 * geo.voxel, top, geo.voxel)

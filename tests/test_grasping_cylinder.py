@@ -102,25 +102,6 @@ def test_a_noisy_can_seen_from_one_side_is_completed_as_a_cylinder():
     assert np.linalg.norm(geo.centre[:2] - can.centre_xy) < 0.004
 
 
-def test_a_can_seen_nearly_all_round_gets_the_box_of_its_circle():
-    """Seen over more than CYL_ARC (here about 217 degrees), a can gets no points added, but the points' box
-    falls short of its diameter; the box becomes the fitted circle's square all the same (the width that
-    decides whether the can fits the stroke, and the preview's cylinder)."""
-    from grasping import _objects
-
-    can = Obj("cylinder", (0.35, 0.05), (0.07, 0.07, 0.13))
-    P, L = _seen_from_above_and(*make_cloud([can], table_size=(0.8, 0.8)), towards=(-1.0, 0.0),
-                                half_angle_deg=108.0)
-    P = _noisy(P, L, 0.0005)
-    sup = estimate_support(P, L)
-    raw = object_geometry(0, P[L == 0], sup, background=P[L < 0], complete=False)
-    assert _objects._covered(_objects._side_arc(raw, sup)) > _objects.CYL_ARC[1]
-    assert raw.extent[:2].max() < 0.069  # short of the diameter both ways
-    geo = object_geometry(0, P[L == 0], sup, background=P[L < 0])
-    assert np.allclose(geo.extent[:2], 0.07, atol=0.0015)
-    assert np.linalg.norm(geo.centre[:2] - can.centre_xy) < 0.003
-
-
 def test_a_toy_whose_head_tops_a_body_is_not_made_a_cylinder():
     """A duck-like toy: a round body (5 cm) and a narrower head (4 cm) on top, seen from one side through
     1.5 mm of noise. Its side points fit one circle about as well as a noisy can's, more of them lie on it
