@@ -235,17 +235,13 @@ class IKSolver:
         qc = np.clip(qc, self.lower, self.upper)
         if seeds is not None:
             seeds = check_shape("seeds", np.asarray(seeds, dtype=np.float64), (None, J))
-        dist = np.linalg.norm(T[:, :3, 3] - self._shoulder, axis=1)
-        far = dist > self.reach * 1.03 + 0.01
+        dist, far = self._far(T)
         seeds_of: list[list[np.ndarray]] = [[qc[i]] for i in range(n)]  # per target, its starts in order
         runs: list[list[tuple]] = [[] for _ in range(n)]  # per target: (q, ep, er, iterations) per seed tried
         why: list[str] = [""] * n  # per target, when not empty: why no (further) seed was tried
         known = {}  # target -> its closed-form branches, when already computed
         if screen and self.chain is not None and not position_only and seeds is None:
-            known = self._branches([i for i in range(n) if not far[i]], T, qc)
-            for i, (_, excess) in known.items():
-                if not (excess == 0).any():
-                    why[i] = _no_branch_message(excess)  # no seed at all: failed with this message
+            known = self._ruled_out(T, qc, far, why)  # no seed at all for those: failed with that message
         live = [i for i in range(n) if not far[i] and not why[i]]
         self._run_lanes([(i, 0) for i in live], seeds_of, runs, T, position_only, n_solutions)
         more = [i for i in live if max_seeds > 1 and self._n_sols(runs[i]) < n_solutions]
@@ -286,13 +282,26 @@ class IKSolver:
         T = np.asarray(T_targets, dtype=np.float64).reshape(-1, 4, 4)
         n, J = len(T), self.robot.nq_arm
         qc = np.clip(np.broadcast_to(np.asarray(hint, dtype=np.float64), (n, J)), self.lower, self.upper)
-        dist = np.linalg.norm(T[:, :3, 3] - self._shoulder, axis=1)
-        far = dist > self.reach * 1.03 + 0.01
+        dist, far = self._far(T)
         why = [self._far_message(T[i], dist[i]) if far[i] else "" for i in range(n)]
-        for i, (_, excess) in self._branches([i for i in range(n) if not far[i]], T, qc).items():
+        self._ruled_out(T, qc, far, why)
+        return why
+
+    def _far(self, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(distance from the shoulder (N,), beyond the arm's reach (N,) bool) of targets T (N, 4, 4): those
+        fail at once."""
+        dist = np.linalg.norm(T[:, :3, 3] - self._shoulder, axis=1)
+        return dist, dist > self.reach * 1.03 + 0.01
+
+    def _ruled_out(self, T: np.ndarray, qc: np.ndarray, far: np.ndarray, why: list[str]) -> dict:
+        """The closed-form branches of the targets T (N, 4, 4) within reach (not ``far``), hints ``qc`` (N, J);
+        sets ``why[i]`` for each target none of whose branches lies within the limits. Returns the branches
+        by target (``_branches``)."""
+        known = self._branches([i for i in range(len(T)) if not far[i]], T, qc)
+        for i, (_, excess) in known.items():
             if not (excess == 0).any():
                 why[i] = _no_branch_message(excess)
-        return why
+        return known
 
     def _results(self, T: np.ndarray, qc: np.ndarray, far: np.ndarray, dist: np.ndarray, runs: list,
                  n_solutions: int, why: list[str]) -> list[IKResult]:
