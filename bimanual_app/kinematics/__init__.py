@@ -17,6 +17,11 @@ Two arms holding one object (``_lift``, used by the grasp stage and the joint-gr
     arms_ik(arms {name: LiftArm}, S {name: T_b1_g}, candidates) -> {name: (Q, ok)}   (batched, staged IK)
     lift_costs(candidates, ik, arms, terms=LIFT_COSTS) -> {term: (N,)};  rank_lifts(...) -> (K,) best first
     object_motion(candidates, i) -> (K, 4, 4)   (the object's motion along candidate i, 1 cm steps)
+
+Straight moves on one IK branch (``_path``, the one rule of the grasp stage's reach check and the task planner):
+    line_poses(T0, T1, n=None) -> (n, 4, 4)   (a pose every WAYPOINT_STEP m and 0.05 rad, ends included)
+    follow_poses({arm: solve}, {arm: (K,4,4)}, {arm: q0 (J,)}) -> ({arm: (K',J)}, PathFailure | None)
+    MAX_JOINT_JUMP: rad per waypoint step above which a step is split to tell a branch switch from fast motion
 """
 
 from __future__ import annotations
@@ -32,9 +37,11 @@ from bimanual_app.kinematics._lift import (
     object_motion,
     rank_lifts,
 )
+from bimanual_app.kinematics._path import MAX_JOINT_JUMP, WAYPOINT_STEP, PathFailure, follow_poses, line_poses
 
 __all__ = ["IKResult", "IKSolver", "solve_ik", "LIFT_COSTS", "LiftArm", "LiftCandidates", "arms_ik",
-           "lift_candidates", "lift_costs", "object_motion", "rank_lifts"]
+           "lift_candidates", "lift_costs", "object_motion", "rank_lifts", "MAX_JOINT_JUMP", "WAYPOINT_STEP",
+           "PathFailure", "follow_poses", "line_poses"]
 
 _CACHE: dict[tuple[int, str | None], IKSolver] = {}
 

@@ -26,12 +26,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bimanual_app.transforms import check_shape, check_T, make_T
+from bimanual_app.kinematics import WAYPOINT_STEP, follow_poses, line_poses
+from bimanual_app.transforms import check_shape, check_T
 
 __all__ = ["PlanFailure", "TaskMotion", "translate_along", "line_poses", "robot_points_mask", "WAYPOINT_STEP", "BASE_RADIUS"]
 
-WAYPOINT_STEP = 0.01  # m between Cartesian waypoints
-MAX_JOINT_JUMP = 0.35  # rad between consecutive Cartesian waypoints: more means an IK branch switch
 BASE_RADIUS = 0.15  # m: background points this close to a base's vertical axis are the robot itself
 # The grasping stage checks its grippers against a 3 mm octree with a 2 mm margin (2-5 mm of clearance in
 # effect); the task's map at 5 mm voxels with a 3 mm margin in contact (3-8 mm) keeps to nearly the same,
@@ -74,22 +73,6 @@ class PlanFailure(Exception):
         self.stage = stage
         self.message = message
         super().__init__(f"{stage}: {message}")
-
-
-def line_poses(T0: np.ndarray, T1: np.ndarray, n: int | None = None) -> np.ndarray:
-    """(n,4,4) gripper poses on the straight line T0 -> T1 (orientation by slerp), by default one every
-    ``WAYPOINT_STEP`` m (and 0.05 rad)."""
-    from scipy.spatial.transform import Rotation, Slerp
-
-    R01 = Rotation.from_matrix(np.stack([T0[:3, :3], T1[:3, :3]]))
-    if n is None:
-        dist = float(np.linalg.norm(T1[:3, 3] - T0[:3, 3]))
-        ang = float(np.linalg.norm((R01[0].inv() * R01[1]).as_rotvec()))
-        n = max(2, int(np.ceil(max(dist / WAYPOINT_STEP, ang / 0.05))) + 1)
-    s = np.linspace(0.0, 1.0, n)
-    R = Slerp([0.0, 1.0], R01)(s).as_matrix()
-    P = T0[:3, 3] + s[:, None] * (T1[:3, 3] - T0[:3, 3])
-    return np.stack([make_T(R[i], P[i]) for i in range(n)])
 
 
 def translate_along(T: np.ndarray, axis_b1: np.ndarray, dist: float) -> np.ndarray:
@@ -278,52 +261,24 @@ class TaskMotion:
         """Joint waypoints through gripper poses, all arms on the same waypoints.
 
         poses: arm -> (K,4,4) gripper poses in b1; q0: arm -> (J,) start. Returns arm -> (K',J) (K' >= K),
-        each IK seeded by the previous solution. Where consecutive solutions differ by more than
-        ``MAX_JOINT_JUMP``, the segment is split for every arm (poses interpolated, slerp) in 2, 4, 8: near
-        a wrist singularity the joints move fast but continuously, and the largest step then shrinks with
-        the sub-steps (accepted once it has nearly halved with every split and is below half the limit);
-        a jump that does not shrink is a switch between IK branches and is refused, as is a pose out of
-        reach. (Fast joints are slowed by the time parametrisation.)
+        each IK seeded by the previous solution, on one IK branch (:func:`bimanual_app.kinematics.follow_poses`,
+        the rule the grasp stage's reach check uses too); a branch switch or a pose out of reach raises
+        PlanFailure. (Fast joints are slowed by the time parametrisation.)
         """
-        from scipy.spatial.transform import Rotation, Slerp
+        def solver(a):
+            def solve(T, q, n_solutions, max_seeds):
+                self.stats["ik_calls"] += 1
+                return self.setup.ik(a, T, q, n_solutions=n_solutions, max_seeds=max_seeds)
+            return solve
 
-        arms = list(poses)
-        K = len(poses[arms[0]])
-        Q = {a: [np.asarray(q0[a], dtype=np.float64)] for a in arms}
-        for k in range(1, K):
-            prev = np.inf
-            for parts in (1, 2, 4, 8):
-                u = np.linspace(0.0, 1.0, parts + 1)[1:]
-                sub, jump = {}, 0.0
-                for a in arms:
-                    T0, T1 = poses[a][k - 1], poses[a][k]
-                    R = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([T0[:3, :3], T1[:3, :3]])))(u).as_matrix()
-                    q, sub[a] = Q[a][-1], []
-                    for i, ui in enumerate(u):
-                        T = make_T(R[i], T0[:3, 3] + ui * (T1[:3, 3] - T0[:3, 3]))
-                        self.stats["ik_calls"] += 1
-                        r = self.setup.ik(a, T, q, n_solutions=1, max_seeds=4)
-                        if r.success and np.max(np.abs(r.q - q)) > MAX_JOINT_JUMP / parts:
-                            # the previous solution did not converge as a seed and another seed found another
-                            # branch: ask for several solutions, the closest to the previous one comes first
-                            r2 = self.setup.ik(a, T, q, n_solutions=4, max_seeds=16)
-                            r = r2 if r2.success else r
-                        if not r.success:
-                            raise PlanFailure("cartesian", f"the {a} gripper leaves its reach {k * WAYPOINT_STEP * 100:.0f}"
-                                                           f" cm along the move (at {np.round(T[:3, 3], 3).tolist()})")
-                        jump = max(jump, float(np.max(np.abs(r.q - q))))
-                        sub[a].append(r.q)
-                        q = r.q
-                if jump <= MAX_JOINT_JUMP / parts or (jump <= 0.6 * prev and jump <= MAX_JOINT_JUMP / 2):
-                    break
-                prev = jump
-            else:
-                step = float(max(np.linalg.norm(poses[a][k, :3, 3] - poses[a][k - 1, :3, 3]) for a in arms)) / 8
-                raise PlanFailure("cartesian", f"the {' / '.join(arms)} arm would swing to another joint branch on "
-                                               f"the move (joint step {jump:.2f} rad over {step * 100:.2f} cm)")
-            for a in arms:
-                Q[a].extend(sub[a])
-        return {a: np.stack(Q[a]) for a in arms}
+        Q, fail = follow_poses({a: solver(a) for a in poses}, poses, q0)
+        if fail is None:
+            return Q
+        if fail.kind == "reach":
+            raise PlanFailure("cartesian", f"the {fail.arm} gripper leaves its reach {fail.index * WAYPOINT_STEP * 100:.0f}"
+                                           f" cm along the move (at {np.round(fail.T[:3, 3], 3).tolist()})")
+        raise PlanFailure("cartesian", f"the {' / '.join(poses)} arm would swing to another joint branch on "
+                                       f"the move (joint step {fail.jump:.2f} rad over {fail.step * 100:.2f} cm)")
 
     def cartesian(self, moves: dict, q_now: dict, min_duration: float = 0.0) -> dict:
         """Cartesian moves of the grippers, all moving arms together on one clock.

@@ -1,0 +1,126 @@
+"""Straight moves on one IK branch: the rule the grasp stage's reach check and the task planner share.
+
+A straight move is a list of gripper poses (``line_poses``: one every ``WAYPOINT_STEP`` m and 0.05 rad), each
+solved by IK seeded with the previous waypoint's solution. Consecutive solutions that differ by more than
+``MAX_JOINT_JUMP`` (any joint) are either fast but continuous motion (near a wrist singularity joints 4 and 6
+trade large opposite turns over a few millimetres) or a switch to another IK branch, which the arm cannot
+follow along the line. :func:`follow_poses` tells them apart by splitting the step in 2, 4, 8 (poses
+interpolated, slerp): a continuous motion's largest joint step shrinks with the sub-steps; a branch switch's
+does not. A step is accepted once its jump is within ``MAX_JOINT_JUMP / parts``, or once it has nearly halved
+with the last split (to 0.6 of it) and is within half the limit.
+
+Both the grasp stage (``grasping.ArmReach``: the approach to a grasp, the lift of a two-arm grasp) and the
+task planner (``bimanual_app.tasks``: every Cartesian move) call :func:`follow_poses`, so a grasp the grasp
+stage keeps is one whose approach the planner's move can follow, on the same waypoints and by the same rule.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from bimanual_app.transforms import make_T
+
+__all__ = ["WAYPOINT_STEP", "MAX_JOINT_JUMP", "PathFailure", "line_poses", "follow_poses"]
+
+WAYPOINT_STEP = 0.01  # m between the waypoints of a straight move
+WAYPOINT_TURN = 0.05  # rad between the waypoints of a straight move
+MAX_JOINT_JUMP = 0.35  # rad between consecutive waypoints: more is a branch switch unless splitting shrinks it
+SPLITS = (1, 2, 4, 8)  # parts a step is split in, in turn, while its jump stays over the limit
+
+# solve(T (4,4), q_seed (J,), n_solutions, max_seeds) -> IKResult (bimanual_app.kinematics.IKResult)
+Solve = Callable[[np.ndarray, np.ndarray, int, int], object]
+
+
+@dataclass
+class PathFailure:
+    """Why a straight move cannot be followed.
+
+    kind: 'reach' (a pose without IK solution) or 'branch' (a step that stays a jump however split).
+    index: the waypoint (1..K-1) whose step failed. arm: the arm that failed ('reach'; '' for 'branch': all).
+    T: (4, 4) the pose that failed ('reach'); jump: the last split's largest joint step (rad, 'branch');
+    step: the length of that split's sub-steps (m, 'branch'). message: the IK's message ('reach').
+    """
+
+    kind: str
+    index: int
+    arm: str = ""
+    T: np.ndarray | None = None
+    jump: float = 0.0
+    step: float = 0.0
+    message: str = ""
+
+
+def line_poses(T0: np.ndarray, T1: np.ndarray, n: int | None = None) -> np.ndarray:
+    """(n, 4, 4) poses on the straight line T0 -> T1 (4, 4) (orientation by slerp), by default one every
+    ``WAYPOINT_STEP`` m and ``WAYPOINT_TURN`` rad (at least 2: both ends)."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    R01 = Rotation.from_matrix(np.stack([T0[:3, :3], T1[:3, :3]]))
+    if n is None:
+        dist = float(np.linalg.norm(T1[:3, 3] - T0[:3, 3]))
+        ang = float(np.linalg.norm((R01[0].inv() * R01[1]).as_rotvec()))
+        n = max(2, int(np.ceil(max(dist / WAYPOINT_STEP, ang / WAYPOINT_TURN))) + 1)
+    s = np.linspace(0.0, 1.0, n)
+    R = Slerp([0.0, 1.0], R01)(s).as_matrix()
+    P = T0[:3, 3] + s[:, None] * (T1[:3, 3] - T0[:3, 3])
+    return np.stack([make_T(R[i], P[i]) for i in range(n)])
+
+
+def follow_poses(solve: dict[str, Solve], poses: dict[str, np.ndarray], q0: dict[str, np.ndarray],
+                 max_jump: float = MAX_JOINT_JUMP) -> tuple[dict[str, np.ndarray], PathFailure | None]:
+    """Joint waypoints of arms moving through their poses together, on one IK branch each (module docstring).
+
+    solve: arm -> IK function (``Solve``); poses: arm -> (K, 4, 4) poses in that solver's frame, the same K for
+    every arm (a split step splits every arm's); q0: arm -> (J,) the configuration at the first pose.
+    Returns (arm -> (K', J) joint waypoints, K' >= K, the first q0; None) or, when the move cannot be
+    followed, (the waypoints up to the failed step, the ``PathFailure``).
+    """
+    arms = list(poses)
+    K = len(poses[arms[0]])
+    if any(len(poses[a]) != K for a in arms):
+        raise ValueError("follow_poses: every arm needs the same number of poses")
+    Q = {a: [np.asarray(q0[a], dtype=np.float64)] for a in arms}
+    for k in range(1, K):
+        sub, fail = _split_step(solve, {a: (poses[a][k - 1], poses[a][k]) for a in arms},
+                                {a: Q[a][-1] for a in arms}, max_jump)
+        if fail is not None:
+            fail.index = k
+            return {a: np.stack(Q[a]) for a in arms}, fail
+        for a in arms:
+            Q[a].extend(sub[a])
+    return {a: np.stack(Q[a]) for a in arms}, None
+
+
+def _split_step(solve: dict[str, Solve], ends: dict, q: dict, max_jump: float) -> tuple[dict, PathFailure | None]:
+    """One step of ``follow_poses``: arm -> (T0, T1) from the configurations ``q`` (arm -> (J,)), split in
+    ``SPLITS`` parts until accepted. Returns (arm -> [sub-step solutions], None) or ({}, the failure)."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    prev = np.inf
+    for parts in SPLITS:
+        u = np.linspace(0.0, 1.0, parts + 1)[1:]
+        sub, jump = {}, 0.0
+        for a, (T0, T1) in ends.items():
+            R = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([T0[:3, :3], T1[:3, :3]])))(u).as_matrix()
+            qa, sub[a] = q[a], []
+            for i, ui in enumerate(u):
+                T = make_T(R[i], T0[:3, 3] + ui * (T1[:3, 3] - T0[:3, 3]))
+                r = solve[a](T, qa, 1, 4)
+                if r.success and np.max(np.abs(r.q - qa)) > max_jump / parts:
+                    # the previous solution did not converge as a seed and another seed found another branch:
+                    # ask for several solutions, the closest to the previous one comes first
+                    r2 = solve[a](T, qa, 4, 16)
+                    r = r2 if r2.success else r
+                if not r.success:
+                    return {}, PathFailure("reach", 0, a, T, message=r.message)
+                jump = max(jump, float(np.max(np.abs(r.q - qa))))
+                sub[a].append(r.q)
+                qa = r.q
+        if jump <= max_jump / parts or (jump <= 0.6 * prev and jump <= max_jump / 2):
+            return sub, None
+        prev = jump
+    step = max(float(np.linalg.norm(T1[:3, 3] - T0[:3, 3])) for T0, T1 in ends.values()) / SPLITS[-1]
+    return {}, PathFailure("branch", 0, jump=jump, step=step)

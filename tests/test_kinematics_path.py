@@ -1,0 +1,146 @@
+"""Straight moves on one IK branch (bimanual_app.kinematics.follow_poses): the rule itself on a made-up one-joint
+arm, and the grasp stage's reach check and the task planner giving the same verdict on the Piper."""
+
+import numpy as np
+import pytest
+
+from bimanual_app.kinematics import MAX_JOINT_JUMP, WAYPOINT_STEP, IKResult, follow_poses, line_poses
+from bimanual_app.transforms import make_T
+
+
+def _x_line(n: int, dx: float = WAYPOINT_STEP) -> np.ndarray:
+    return np.stack([make_T(np.eye(3), [i * dx, 0.0, 0.0]) for i in range(n)])
+
+
+def _one_joint(f, reach: float = np.inf, branches=None):
+    """A solve function of a made-up one-joint arm whose joint is ``f(x)`` at the pose's x (m); beyond ``reach``
+    it fails; ``branches(x, q_seed)``, when given, picks the solution for a seed (an arm with two branches)."""
+    calls = []
+
+    def solve(T, q_seed, n_solutions, max_seeds):
+        x = float(T[0, 3])
+        calls.append((x, n_solutions, max_seeds))
+        if x > reach + 1e-12:
+            return IKResult(False, None, np.zeros((0, 1)), 1.0, 0.0, 0, max_seeds, "out of reach")
+        q = np.array([f(x) if branches is None else branches(x, q_seed)])
+        return IKResult(True, q, q[None], 0.0, 0.0, 1, 1, "")
+
+    solve.calls = calls
+    return solve
+
+
+def test_a_slow_joint_follows_the_line_step_by_step():
+    solve = _one_joint(lambda x: 2.0 * x)
+    Q, fail = follow_poses({"a": solve}, {"a": _x_line(6)}, {"a": np.zeros(1)})
+    assert fail is None
+    np.testing.assert_allclose(Q["a"][:, 0], 2.0 * np.arange(6) * WAYPOINT_STEP)
+
+
+def test_fast_but_continuous_motion_is_split_until_it_is_followed():
+    # a wrist near its singularity: 0.6 rad over one 1 cm step, smooth (a steep ramp): the splits shrink the jump
+    solve = _one_joint(lambda x: 0.6 * np.clip((x - 0.01) / 0.01, 0.0, 1.0))
+    Q, fail = follow_poses({"a": solve}, {"a": _x_line(4)}, {"a": np.zeros(1)})
+    assert fail is None
+    assert len(Q["a"]) > 4  # the steep step came back in sub-steps
+    assert np.max(np.abs(np.diff(Q["a"][:, 0]))) <= MAX_JOINT_JUMP / 2 + 1e-12
+
+
+def test_a_switch_to_another_branch_is_refused_however_split():
+    # the joint jumps by 1 rad at x = 1.5 cm, a step of its own at every split: another IK branch
+    solve = _one_joint(lambda x: 0.0 if x < 0.015 else 1.0)
+    Q, fail = follow_poses({"a": solve}, {"a": _x_line(4)}, {"a": np.zeros(1)})
+    assert fail is not None and fail.kind == "branch" and fail.index == 2
+    assert fail.jump == pytest.approx(1.0)
+    assert fail.step == pytest.approx(WAYPOINT_STEP / 8)
+    assert len(Q["a"]) == 2  # the waypoints up to the failed step
+
+
+def test_a_jump_asks_for_more_solutions_and_keeps_the_nearest():
+    # two branches (q and q + 1): the first answer of a seed far from its branch is the other one; asked for
+    # several solutions (n_solutions > 1) the solver returns the nearest
+    def branches(x, q_seed):
+        return 2.0 * x + (1.0 if q_seed[0] > 0.5 else 0.0) if x < 0.025 else 2.0 * x + 1.0
+
+    calls = []
+
+    def solve(T, q_seed, n_solutions, max_seeds):
+        calls.append(n_solutions)
+        x = float(T[0, 3])
+        q = np.array([2.0 * x if n_solutions > 1 else branches(x, q_seed)])
+        return IKResult(True, q, q[None], 0.0, 0.0, 1, 1, "")
+
+    Q, fail = follow_poses({"a": solve}, {"a": _x_line(5)}, {"a": np.zeros(1)})
+    assert fail is None
+    np.testing.assert_allclose(Q["a"][:, 0], 2.0 * np.arange(5) * WAYPOINT_STEP)
+    assert max(calls) > 1
+
+
+def test_a_pose_out_of_reach_names_the_arm_and_the_waypoint():
+    ok = _one_joint(lambda x: x)
+    short = _one_joint(lambda x: x, reach=0.025)
+    Q, fail = follow_poses({"p": ok, "s": short}, {"p": _x_line(5), "s": _x_line(5)},
+                           {"p": np.zeros(1), "s": np.zeros(1)})
+    assert fail is not None and fail.kind == "reach"
+    assert (fail.arm, fail.index) == ("s", 3)
+    assert fail.T[0, 3] == pytest.approx(0.03)
+    assert len(Q["p"]) == len(Q["s"]) == 3
+
+
+def test_arms_moving_together_split_every_arms_step():
+    slow = _one_joint(lambda x: x)
+    steep = _one_joint(lambda x: 0.6 * np.clip((x - 0.01) / 0.01, 0.0, 1.0))
+    Q, fail = follow_poses({"p": slow, "s": steep}, {"p": _x_line(4), "s": _x_line(4)},
+                           {"p": np.zeros(1), "s": np.zeros(1)})
+    assert fail is None
+    assert len(Q["p"]) == len(Q["s"]) > 4
+
+
+def test_poses_of_different_lengths_are_refused():
+    solve = _one_joint(lambda x: x)
+    with pytest.raises(ValueError, match="same number"):
+        follow_poses({"p": solve, "s": solve}, {"p": _x_line(3), "s": _x_line(4)}, {"p": np.zeros(1), "s": np.zeros(1)})
+
+
+def test_line_poses_keep_the_waypoint_spacing_and_both_ends():
+    T0 = make_T(np.eye(3), [0.3, 0.0, 0.2])
+    T1 = make_T(np.eye(3), [0.3, 0.0, 0.29])
+    P = line_poses(T0, T1)
+    assert len(P) == 10
+    np.testing.assert_allclose(P[0], T0)
+    np.testing.assert_allclose(P[-1], T1)
+    assert np.allclose(np.diff(P[:, 2, 3]), 0.01)
+
+
+def test_the_grasp_stage_and_the_planner_agree_on_straight_moves():
+    """The reach filter's ``follow`` and the task planner's ``ik_path`` (the same rule, the same waypoints) give
+    the same verdict on 9 cm straight moves of the Piper's gripper from random configurations in random
+    directions. (Among these 16, the grasp stage's earlier rule, 0.6 rad per 2 cm step and no split, refused
+    two moves the planner follows: samples 4 and 13.)"""
+    from _task_fixtures import FIX_T_B1_B2, box_surface_points, table_points
+
+    from bimanual_app.robots import load_robot
+    from bimanual_app.tasks._motion import PlanFailure, TaskMotion
+    from grasping import ArmReach, load_gripper
+    from grasping._reach import pregrasp_pose
+
+    robot = load_robot("piper")
+    reach = ArmReach(robot, load_gripper("piper"))
+    obj = box_surface_points([0.3, 0.0, 0.03], [0.05, 0.05, 0.06])
+    motion = TaskMotion(robot, FIX_T_B1_B2, np.vstack([table_points(), obj]), obj, obj)
+    rng = np.random.default_rng(0)
+    verdicts = []
+    for _ in range(16):
+        q = robot.neutral() + rng.uniform(-1.0, 1.0, robot.nq_arm) * np.array([1.5, 1.0, 1.0, 1.5, 1.0, 1.5])
+        q = np.clip(q, robot.lower, robot.upper)
+        T = robot.fk_link(q[None], robot.tcp_link)[0]
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        try:
+            motion.ik_path({"primary": line_poses(T, pregrasp_pose(T, 0.09, d))}, {"primary": q})
+            planner_says = ""
+        except PlanFailure as e:
+            planner_says = e.message
+        grasp_says = reach.follow(T, q, d, 0.09)
+        assert (grasp_says == "") == (planner_says == ""), (grasp_says, planner_says)
+        verdicts.append(grasp_says == "")
+    assert any(verdicts) and not all(verdicts)  # both kinds of move were met
