@@ -85,10 +85,12 @@ def _choose(points: np.ndarray, threshold: float, up: np.ndarray | None, cos_lev
             min_points: int) -> tuple[np.ndarray, np.ndarray] | None:
     """``(model (4,), inlier points)`` of the chosen RANSAC plane, or None.
 
-    Up to ``max_planes`` planes are extracted in turn (each with at least a third of the first one's
-    inliers). Without ``up`` the first (biggest) wins. With ``up``: the first level one (normal within
-    ``cos_level`` of ``up``) that passes within ``near`` of the origin, else the first level one, else
-    (unless ``level_only``) the biggest.
+    Up to ``max_planes`` planes are extracted in turn, biggest first. Without ``up`` the first (biggest)
+    wins. With ``up``: the first level one (normal within ``cos_level`` of ``up``) that passes within ``near``
+    of the origin, whatever its size (with ``near``, the origin stands on the plane sought: the primary arm's
+    base on the table, which a floor seen over a larger area outnumbers in an evenly spread sample); else the
+    first level one holding at least a third of the first one's inliers; else (unless ``level_only``) the
+    biggest.
     """
     remaining, first, first_count, level = points, None, 0, []
     for attempt in range(max_planes):
@@ -99,18 +101,18 @@ def _choose(points: np.ndarray, threshold: float, up: np.ndarray | None, cos_lev
             first_count, first = len(inl), (model, remaining[inl])
             if up is None:
                 break
-        if len(inl) < first_count / 3:
-            break
         norm = max(np.linalg.norm(model[:3]), 1e-12)
-        if abs(model[:3] @ up) / norm >= cos_level:
-            dist = abs(model[3]) / norm
-            level.append((dist, model, remaining[inl]))
-            if near is not None and dist < near:
-                break
+        is_level = abs(model[:3] @ up) / norm >= cos_level
+        if is_level and near is not None and abs(model[3]) / norm < near:
+            return model, remaining[inl]
+        if len(inl) < first_count / 3:
+            if near is None:
+                break  # the planes only get smaller: no level plane to prefer among them
+        elif is_level:
+            level.append((model, remaining[inl]))
         remaining = np.delete(remaining, inl, axis=0)
     if level:
-        close = [h for h in level if near is not None and h[0] < near]
-        return (close or level)[0][1:]
+        return level[0]
     return None if level_only else first
 
 

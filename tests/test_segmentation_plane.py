@@ -32,6 +32,27 @@ def test_prefers_the_level_plane_near_the_origin_over_a_bigger_one():
     assert biggest.support >= 5000
 
 
+def test_the_table_through_the_origin_wins_over_a_floor_seen_far_wider():
+    """A floor 75 cm down seen over 5 x 5 m outnumbers the 1.2 x 0.8 m table in an evenly spread sample (more
+    than three to one): the table, the level plane through b1's origin, is still the one taken, by the
+    segmentation and by the preview."""
+    from bimanual_app.simulation import fit_table as preview_table
+    from segmentation import SegmentParams
+    from segmentation._table import fit_table
+
+    floor = _patch(12000, -2.5, 2.5, -0.75, 0.0005, 4)
+    table = _patch(3000, -0.1, 1.1, -0.001, 0.0005, 5)[:, [0, 1, 2]]
+    table[:, 1] = table[:, 1] * 0.8 / 1.2 - 0.4
+    P = np.vstack([floor, table])
+    assert len(table) < len(floor) / 3
+    fit = fit_plane(P, 0.008, up=UP, near=0.2)
+    assert abs(fit.offset) < 0.005
+    assert abs(abs(fit_plane(P, 0.008, up=UP).offset) - 0.75) < 0.005  # without "near": the bigger level plane
+    seg = fit_table(P, SegmentParams())
+    assert abs(seg.offset) < 0.005 and seg.extent.max() < 1.5
+    assert abs(preview_table(P).d) < 0.005
+
+
 def test_level_only_refuses_a_wall_and_otherwise_takes_it():
     rng = np.random.default_rng(2)
     wall = np.c_[np.full(2000, 0.9), rng.uniform(-0.5, 0.5, 2000), rng.uniform(0.0, 0.8, 2000)]
