@@ -85,7 +85,8 @@ def _choose(points: np.ndarray, threshold: float, up: np.ndarray | None, cos_lev
             min_points: int) -> tuple[np.ndarray, np.ndarray] | None:
     """``(model (4,), inlier points)`` of the chosen RANSAC plane, or None.
 
-    Up to ``max_planes`` planes are extracted in turn, biggest first. Without ``up`` the first (biggest)
+    Up to ``max_planes`` planes are extracted in turn, biggest first (with ``near``: as many as a room's floor
+    and walls seen past the table may be, before it). Without ``up`` the first (biggest)
     wins. With ``up``: the first level one (normal within ``cos_level`` of ``up``) that passes within ``near``
     of the origin, whatever its size (with ``near``, the origin stands on the plane sought: the primary arm's
     base on the table, which a floor seen over a larger area outnumbers in an evenly spread sample); else the
@@ -110,6 +111,8 @@ def _choose(points: np.ndarray, threshold: float, up: np.ndarray | None, cos_lev
                 break  # the planes only get smaller: no level plane to prefer among them
         elif is_level:
             level.append((model, remaining[inl]))
+            if near is None:
+                break  # the first level one is the choice
         remaining = np.delete(remaining, inl, axis=0)
     if level:
         return level[0]
@@ -146,7 +149,7 @@ def _refine(points: np.ndarray, inliers: np.ndarray, threshold: float,
 
 def fit_plane(points: np.ndarray, threshold: float, *, up: np.ndarray | None = None,
               cos_level: float = COS_HORIZONTAL, near: float | None = None, level_only: bool = False,
-              max_planes: int = 3, iterations: int = 1000, noise_window: float = 0.03,
+              max_planes: int = 8, iterations: int = 1000, noise_window: float = 0.03,
               min_points: int = MIN_RANSAC_POINTS, seed: int = 0) -> PlaneFit | None:
     """The dominant plane of ``points`` (N, 3), robust and repeatable.
 

@@ -34,16 +34,18 @@ def test_prefers_the_level_plane_near_the_origin_over_a_bigger_one():
 
 def test_the_table_through_the_origin_wins_over_a_floor_seen_far_wider():
     """A floor 75 cm down seen over 5 x 5 m outnumbers the 1.2 x 0.8 m table in an evenly spread sample (more
-    than three to one): the table, the level plane through b1's origin, is still the one taken, by the
-    segmentation and by the preview."""
+    than three to one), and so do three walls of the room: the table, the level plane through b1's origin, is
+    still the one taken, by the segmentation and by the preview."""
     from bimanual_app.simulation import fit_table as preview_table
     from segmentation import SegmentParams
     from segmentation._table import fit_table
 
     floor = _patch(12000, -2.5, 2.5, -0.75, 0.0005, 4)
-    table = _patch(3000, -0.1, 1.1, -0.001, 0.0005, 5)[:, [0, 1, 2]]
+    table = _patch(3000, -0.1, 1.1, -0.001, 0.0005, 5)
     table[:, 1] = table[:, 1] * 0.8 / 1.2 - 0.4
-    P = np.vstack([floor, table])
+    walls = [_patch(n, -2.5, 2.5, 0.0, 0.0005, 6 + k)[:, order] + offset for k, (n, order, offset) in enumerate(
+        [(6000, [2, 0, 1], [2.8, 0.0, 0.0]), (5000, [0, 2, 1], [0.0, 2.5, 0.0]), (4000, [2, 0, 1], [-2.2, 0.0, 0.0])])]
+    P = np.vstack([floor, table, *walls])  # the room's floor and three walls all hold more points than the table
     assert len(table) < len(floor) / 3
     fit = fit_plane(P, 0.008, up=UP, near=0.2)
     assert abs(fit.offset) < 0.005
