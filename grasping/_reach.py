@@ -15,11 +15,11 @@ when
   (up to ``n_solutions`` branches are tried for what follows),
   trying the grasp and the same grasp turned 180 degrees about the approach axis (a parallel gripper is
   symmetric; the wrist's joint limits often allow only one of them) -- ``ReachResult.flipped`` says which;
-- the pre-grasp, ``pregrasp`` metres back along the approach (or ``retreat``), and the task's waypoints
-  between (1 cm apart, from the held-off pose where there is one: the very line the task's approach
-  follows), are reached by IK seeded from the grasp's solution, on one IK branch by the task planner's own
-  rule (``bimanual_app.kinematics.follow_poses``: a straight approach the arm can follow, not a jump to
-  another branch);
+- the pre-grasp, ``pregrasp`` metres back along the approach (or ``retreat``), and points at most 2 cm
+  apart between (from the held-off pose, where there is one: the very line the task's approach follows), are
+  reached by IK
+  seeded from the grasp's solution, each step moving no joint more than ``max_step`` radians (a straight
+  approach the arm can follow, not a jump to another IK branch);
 - the grasp, the pre-grasp and the points between are free of collisions with the scene map (object
   included) and of self collisions (``bimanual_app.collision.CollisionWorld``); the gripper's own shapes
   (flange, palm, fingers) against the map are left to the grasp sampler's exact checks (swept, against
@@ -36,7 +36,6 @@ from typing import Protocol
 
 import numpy as np
 
-from bimanual_app.kinematics import MAX_JOINT_JUMP
 from bimanual_app.transforms import inv_T
 
 from ._antipodal import rotate_about_approach
@@ -85,15 +84,14 @@ class ArmReach:
         pregrasp: pre-grasp distance (m), 0.08-0.10 by the grasp contract.
         margin: clearance the arm's links keep from the scene map (m).
         max_seeds: IK seeds per attempt (fewer: faster rejection of unreachable grasps).
-        max_jump: largest joint change (rad) between successive approach waypoints before a step is split to
-            tell fast motion from a branch switch (``bimanual_app.kinematics.follow_poses``).
+        max_step: largest joint change (rad) between successive approach points.
         n_solutions: IK branches tried for the approach (distinct solutions of the grasp pose).
         q_current: (J,) configuration the closest IK solution is sought to (default: the rest pose).
         resolution: voxel size of the collision scene map (m).
     """
 
     def __init__(self, robot, gripper, T_b1_b: np.ndarray | None = None, scene_points_b1: np.ndarray | None = None,
-                 pregrasp: float = 0.09, margin: float = 0.004, max_seeds: int = 6, max_jump: float = MAX_JOINT_JUMP,
+                 pregrasp: float = 0.09, margin: float = 0.004, max_seeds: int = 6, max_step: float = 0.6,
                  q_current: np.ndarray | None = None, resolution: float = 0.01, name: str = "primary",
                  n_solutions: int = 3, _solver=None):
         from bimanual_app.kinematics import IKSolver
@@ -105,7 +103,7 @@ class ArmReach:
         self.pregrasp = float(pregrasp)
         self.margin = float(margin)
         self.max_seeds = int(max_seeds)
-        self.max_jump = float(max_jump)
+        self.max_step = float(max_step)
         self.resolution = float(resolution)
         self.n_solutions = int(n_solutions)
         self.q_current = robot.neutral() if q_current is None else np.asarray(q_current, dtype=np.float64)
@@ -237,30 +235,22 @@ class ArmReach:
 
     def follow(self, T_b_g: np.ndarray, q: np.ndarray, direction_b: np.ndarray, distance: float) -> str:
         """'' when the arm carries its gripper from ``T_b_g`` (4, 4; joints ``q`` (J,)) ``distance`` metres along
-        ``direction_b`` (3,; base frame) in a straight line, orientation kept, on one IK branch (the task
-        planner's rule, ``bimanual_app.kinematics.follow_poses``), else why not. Kinematics only: what the
-        gripper carries is the caller's to check."""
-        from bimanual_app.kinematics import line_poses
+        ``direction_b`` (3,; base frame) in a straight line, orientation kept (IK seeded step by step, no
+        joint jump), else why not. Kinematics only: what the gripper carries is the caller's to check.
 
-        T_end = pregrasp_pose(T_b_g, distance, np.asarray(direction_b, dtype=np.float64))
-        poses = line_poses(np.asarray(T_b_g, dtype=np.float64), T_end)
-        _, msg = self._follow(poses, q, [f"{d * 100:.0f} cm along" for d in np.linspace(0.0, distance, len(poses))])
-        return msg
-
-    def _follow(self, poses: np.ndarray, q: np.ndarray, where: list[str]) -> tuple[np.ndarray, str]:
-        """The joint path (K', J) along ``poses`` (K, 4, 4) from ``q`` (J,) at the first pose, and '' or why
-        it cannot be followed, naming the failed pose by ``where`` (K,)."""
-        from bimanual_app.kinematics import follow_poses
-
-        def solve(T, q_seed, n_solutions, max_seeds):
-            return self.solver.solve(T, q_current=q_seed, n_solutions=n_solutions, max_seeds=max_seeds)
-
-        Q, fail = follow_poses({"arm": solve}, {"arm": poses}, {"arm": np.asarray(q, dtype=np.float64)}, self.max_jump)
-        if fail is None:
-            return Q["arm"], ""
-        if fail.kind == "reach":
-            return Q["arm"], f"{where[fail.index]}: {fail.message.split(' (best')[0]}"
-        return Q["arm"], f"{where[fail.index]}: a jump between IK branches ({fail.jump:.2f} rad over {fail.step * 100:.2f} cm)"
+        Steps of at most 2 cm: near the wrist singularity (joint 5 near 0) joints 4 and 6 trade large
+        opposite turns over a few centimetres, which coarser steps would take for a jump between branches."""
+        prev = np.asarray(q, dtype=np.float64)
+        n = max(3, int(np.ceil(distance / 0.02)))
+        for s in np.arange(1, n + 1) / n:
+            res = self.solver.solve(pregrasp_pose(T_b_g, s * distance, np.asarray(direction_b, dtype=np.float64)),
+                                    q_current=prev, max_seeds=4)
+            if not res.success:
+                return f"{s * distance * 100:.0f} cm along: {res.message.split(' (best')[0]}"
+            if np.max(np.abs(res.q - prev)) > self.max_step:
+                return f"{s * distance * 100:.0f} cm along: a jump between IK branches"
+            prev = res.q
+        return ""
 
     def with_pregrasp(self, pregrasp: float) -> ArmReach:
         """The same filter (solver and scene map shared) checking pre-grasps ``pregrasp`` metres back."""
@@ -273,20 +263,25 @@ class ArmReach:
     def for_scene(self, points_b1: np.ndarray) -> ArmReach:
         """The same filter with another scene map (points (N, 3) in b1); shares the IK solver."""
         return ArmReach(self.robot, self.gripper, self.T_b1_b, points_b1, self.pregrasp, self.margin,
-                        self.max_seeds, self.max_jump, self.q_current, self.resolution, self.name, self.n_solutions,
+                        self.max_seeds, self.max_step, self.q_current, self.resolution, self.name, self.n_solutions,
                         _solver=self.solver)
 
     def _approach(self, T: np.ndarray, q: np.ndarray, retreat: np.ndarray | None = None,
-                  hold_off: np.ndarray | None = None) -> tuple[np.ndarray | None, np.ndarray, str]:
-        """The straight approach from the grasp ``T`` (4, 4; joints ``q`` (J,)) back to the pre-grasp, followed
-        as the task's move follows it (``_follow``); with ``hold_off`` (3,), first the held-off pose, then the
-        line from it to the pre-grasp. Returns (the pre-grasp's joints or None, the path's joints (K', J) after
-        the grasp's, '' or why not)."""
+                  hold_off: np.ndarray | None = None) -> tuple[np.ndarray | None, list[np.ndarray], str]:
+        """IK along the straight approach from the grasp back to the pre-grasp, seeded step by step; with
+        ``hold_off`` (3,), first the held-off pose, then the line from it to the pre-grasp."""
         poses, where = _approach_poses(T, self.pregrasp, retreat, hold_off)
-        Q, msg = self._follow(np.stack([T] + poses), q, ["grasp"] + where)
-        if msg:
-            return None, Q[1:], msg
-        return Q[-1], Q[1:], ""
+        qs = []
+        prev = q
+        for Tk, at in zip(poses, where):
+            res = self.solver.solve(Tk, q_current=prev, max_seeds=4)
+            if not res.success:
+                return None, qs, f"{at}: {res.message}"
+            if np.max(np.abs(res.q - prev)) > self.max_step:
+                return None, qs, "the straight approach needs a jump between IK branches"
+            qs.append(res.q)
+            prev = res.q
+        return prev, qs, ""
 
     FIRST_IK_CACHE = 4096  # grasp poses whose IK (from q_current) is remembered
 
@@ -336,7 +331,7 @@ class ArmReach:
         w = np.full(n, self.gripper.min_width) if width is None else np.broadcast_to(np.asarray(width, float), (n,))
         if self.max_seeds > 1 + self.solver.n_near:  # random seeds would make a repeat differ
             return self._check(T_b_g, w, rt, ho)
-        setting = (self.pregrasp, self.q_current.tobytes(), self.max_seeds, self.n_solutions, self.max_jump)
+        setting = (self.pregrasp, self.q_current.tobytes(), self.max_seeds, self.n_solutions, self.max_step)
         keys = [(T_b_g[i].tobytes(), float(w[i]), None if rt is None else rt[i].tobytes(),
                  None if ho is None else ho[i].tobytes(), setting) for i in range(n)]
         cache = self._reach_cache
@@ -430,7 +425,7 @@ class ArmReach:
             return False
         if self.world is not None:
             self.world.set_opening(0, self.gripper.robot_opening(float(w[i])))
-            bad = self._collisions(np.concatenate([q[None], q_path]))
+            bad = self._collisions(np.stack([q] + q_path))
             if bad:
                 why[i].append(bad)
                 return False
@@ -441,19 +436,16 @@ class ArmReach:
 def _approach_poses(T: np.ndarray, pregrasp: float, retreat: np.ndarray | None, hold_off: np.ndarray | None
                     ) -> tuple[list[np.ndarray], list[str]]:
     """The poses (4, 4) an approach to grasp ``T`` is checked at, from the grasp outwards, and what each is:
-    the task's waypoints (``WAYPOINT_STEP`` apart) on the straight line to the pre-grasp (``pregrasp`` metres
-    along ``retreat``, default -z); with ``hold_off`` (3,), the held-off pose first and the line from it (the
-    task's approach line)."""
-    from bimanual_app.kinematics import WAYPOINT_STEP
-
-    n = max(2, int(np.ceil(pregrasp / WAYPOINT_STEP - 1e-9)))
+    at most 2 cm apart on the straight line to the pre-grasp (``pregrasp`` metres along ``retreat``, default
+    -z); with ``hold_off`` (3,), the held-off pose first and the line from it (the task's approach line)."""
+    n = max(3, int(np.ceil(pregrasp / 0.02)))  # 2 cm steps: see ``ArmReach.follow`` (the wrist singularity)
     if hold_off is None:
         return ([pregrasp_pose(T, s * pregrasp, retreat) for s in np.arange(1, n + 1) / n],
                 [f"pre-grasp {s * pregrasp * 100:.0f} cm back" for s in np.arange(1, n + 1) / n])
     T_end = T.copy()
     T_end[:3, 3] += hold_off
     line = pregrasp_pose(T, pregrasp, retreat)[:3, 3] - T_end[:3, 3]
-    n = max(n, int(np.ceil(np.linalg.norm(line) / WAYPOINT_STEP - 1e-9)))
+    n = max(n, int(np.ceil(np.linalg.norm(line) / 0.02)))
     poses, where = [T_end], [f"held off {np.linalg.norm(hold_off) * 1000:.0f} mm"]
     for s in np.arange(1, n + 1) / n:
         Tk = T_end.copy()

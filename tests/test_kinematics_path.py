@@ -1,5 +1,5 @@
-"""Straight moves on one IK branch (bimanual_app.kinematics.follow_poses): the rule itself on a made-up one-joint
-arm, and the grasp stage's reach check and the task planner giving the same verdict on the Piper."""
+"""Straight moves on one IK branch (bimanual_app.kinematics.follow_poses, the task planner's Cartesian moves): the
+rule itself on a made-up one-joint arm."""
 
 import numpy as np
 import pytest
@@ -111,36 +111,29 @@ def test_line_poses_keep_the_waypoint_spacing_and_both_ends():
     assert np.allclose(np.diff(P[:, 2, 3]), 0.01)
 
 
-def test_the_grasp_stage_and_the_planner_agree_on_straight_moves():
-    """The reach filter's ``follow`` and the task planner's ``ik_path`` (the same rule, the same waypoints) give
-    the same verdict on 9 cm straight moves of the Piper's gripper from random configurations in random
-    directions. (Among these 16, the grasp stage's earlier rule, 0.6 rad per 2 cm step and no split, refused
-    two moves the planner follows: samples 4 and 13.)"""
+def test_the_planner_follows_a_straight_line_on_the_piper_and_names_where_it_leaves_the_reach():
+    """TaskMotion.ik_path on follow_poses: a 9 cm line from a comfortable pose is followed (every waypoint's FK
+    on the line), and a line out past the arm's reach fails with the waypoint and the pose."""
     from _task_fixtures import FIX_T_B1_B2, box_surface_points, table_points
 
     from bimanual_app.robots import load_robot
     from bimanual_app.tasks._motion import PlanFailure, TaskMotion
-    from grasping import ArmReach, load_gripper
-    from grasping._reach import pregrasp_pose
 
     robot = load_robot("piper")
-    reach = ArmReach(robot, load_gripper("piper"))
     obj = box_surface_points([0.3, 0.0, 0.03], [0.05, 0.05, 0.06])
     motion = TaskMotion(robot, FIX_T_B1_B2, np.vstack([table_points(), obj]), obj, obj)
-    rng = np.random.default_rng(0)
-    verdicts = []
-    for _ in range(16):
-        q = robot.neutral() + rng.uniform(-1.0, 1.0, robot.nq_arm) * np.array([1.5, 1.0, 1.0, 1.5, 1.0, 1.5])
-        q = np.clip(q, robot.lower, robot.upper)
-        T = robot.fk_link(q[None], robot.tcp_link)[0]
-        d = rng.normal(size=3)
-        d /= np.linalg.norm(d)
-        try:
-            motion.ik_path({"primary": line_poses(T, pregrasp_pose(T, 0.09, d))}, {"primary": q})
-            planner_says = ""
-        except PlanFailure as e:
-            planner_says = e.message
-        grasp_says = reach.follow(T, q, d, 0.09)
-        assert (grasp_says == "") == (planner_says == ""), (grasp_says, planner_says)
-        verdicts.append(grasp_says == "")
-    assert any(verdicts) and not all(verdicts)  # both kinds of move were met
+    q = robot.neutral()
+    T = robot.fk_link(q[None], robot.tcp_link)[0]
+    T_end = T.copy()
+    T_end[:3, 3] += [0.0, 0.0, 0.09]
+    poses = line_poses(T, T_end)
+    Q = motion.ik_path({"primary": poses}, {"primary": q})["primary"]
+    assert len(Q) >= len(poses)
+    P = robot.fk_link(Q, robot.tcp_link)[:, :3, 3]
+    d = np.cross(P - T[:3, 3], [0.0, 0.0, 1.0])
+    assert np.abs(d).max() < 1e-3  # on the vertical line
+    assert np.linalg.norm(P[-1] - T_end[:3, 3]) < 1e-3
+    far = T.copy()
+    far[:3, 3] = [0.95, 0.0, T[2, 3]]
+    with pytest.raises(PlanFailure, match="leaves its reach"):
+        motion.ik_path({"primary": line_poses(T, far)}, {"primary": q})

@@ -18,7 +18,7 @@ Two arms holding one object (``_lift``, used by the grasp stage and the joint-gr
     lift_costs(candidates, ik, arms, terms=LIFT_COSTS) -> {term: (N,)};  rank_lifts(...) -> (K,) best first
     object_motion(candidates, i) -> (K, 4, 4)   (the object's motion along candidate i, 1 cm steps)
 
-Straight moves on one IK branch (``_path``, the one rule of the grasp stage's reach check and the task planner):
+Straight moves on one IK branch (``_path``, the task planner's Cartesian moves):
     line_poses(T0, T1, n=None) -> (n, 4, 4)   (a pose every WAYPOINT_STEP m and 0.05 rad, ends included)
     follow_poses({arm: solve}, {arm: (K,4,4)}, {arm: q0 (J,)}) -> ({arm: (K',J)}, PathFailure | None)
     MAX_JOINT_JUMP: rad per waypoint step above which a step is split to tell a branch switch from fast motion

@@ -1,4 +1,4 @@
-"""Straight moves on one IK branch: the rule the grasp stage's reach check and the task planner share.
+"""Straight moves on one IK branch: the task planner's rule for every Cartesian move.
 
 A straight move is a list of gripper poses (``line_poses``: one every ``WAYPOINT_STEP`` m and 0.05 rad), each
 solved by IK seeded with the previous waypoint's solution. Consecutive solutions that differ by more than
@@ -9,9 +9,9 @@ interpolated, slerp): a continuous motion's largest joint step shrinks with the 
 does not. A step is accepted once its jump is within ``MAX_JOINT_JUMP / parts``, or once it has nearly halved
 with the last split (to 0.6 of it) and is within half the limit.
 
-Both the grasp stage (``grasping.ArmReach``: the approach to a grasp, the lift of a two-arm grasp) and the
-task planner (``bimanual_app.tasks``: every Cartesian move) call :func:`follow_poses`, so a grasp the grasp
-stage keeps is one whose approach the planner's move can follow, on the same waypoints and by the same rule.
+The grasp stage's reach check (``grasping.ArmReach``) keeps a coarser rule of its own, which also stands in
+for the planner's fallbacks around these moves (docs/grasping.md: this rule there was measured and lost
+held-out scenes).
 """
 
 from __future__ import annotations
