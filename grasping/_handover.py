@@ -405,6 +405,28 @@ def handover_givers(picks: GraspSet, free: GraspSet, reached: ArmGrasps, prim: A
     return givers, [clear[i] for i in chosen]
 
 
+def waiting_receiver_last(givers: ArmGrasps, clear: list, q_receiver: np.ndarray, check: TwoArmCheck,
+                          giver_arm: str = "primary") -> tuple[ArmGrasps, list, int]:
+    """``givers`` (from :func:`handover_givers`) with the picks whose arm, at the pre-grasp or the grasp, comes
+    within the check's margin of the receiver waiting at ``q_receiver`` (J,; grippers closed, as the task
+    starts) moved after the others, order kept within each part; ``clear`` reordered alike; and how many were
+    moved. The task's first move takes the giver to that pre-grasp with the receiver still there: its goal
+    check refuses such a pick whatever comes after (the same arm-against-arm world and margin)."""
+    def free(k: int) -> bool:
+        w = float(givers.grasps.width[k])
+        for q in (givers.q_pre[k], givers.q[k]):
+            ok = (check(q, w, q_receiver, 0.0) if giver_arm == "primary" else check(q_receiver, 0.0, q, w))[0]
+            if not ok:
+                return False
+        return True
+
+    ok = np.array([free(k) for k in range(len(givers))], dtype=bool)
+    order = np.r_[np.nonzero(ok)[0], np.nonzero(~ok)[0]].astype(int)
+    moved = ArmGrasps(givers.arm, givers.grasps.take(order), givers.index[order], givers.q[order],
+                      givers.q_pre[order], givers.T_b_g[order], givers.tried, givers.reasons)
+    return moved, [clear[k] for k in order], int(np.count_nonzero(~ok))
+
+
 def plan_handover(geo: ObjectGeometry, support: Support, giver: ArmGrasps, free: GraspSet, arms: dict[str, Arm],
                   collider: GripperCollider, check: TwoArmCheck | None, params: HandoverParams = HandoverParams(),
                   clear: list[np.ndarray] | None = None, obstacles_b1: np.ndarray | None = None,

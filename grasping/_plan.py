@@ -30,7 +30,15 @@ from ._antipodal import GraspSet, SamplerParams, sample_grasps
 from ._arms import Arm, ArmGrasps, TwoArmCheck, lifting_arm, reachable_by_group, reachable_grasps
 from ._collision import GripperCollider, SceneOctree
 from ._gripper import GripperModel
-from ._handover import ARM_NAMES, Handover, HandoverParams, handover_givers, plan_handovers
+from ._handover import (
+    ARM_NAMES,
+    Handover,
+    HandoverParams,
+    handover_givers,
+    other_arm,
+    plan_handovers,
+    waiting_receiver_last,
+)
 from ._inputs import SceneCloud
 from ._joint import JointPair, PairLift, joint_pairs, spread_order
 from ._objects import (
@@ -558,10 +566,15 @@ def _search_handovers(plan: ObjectPlan, support: Support, collider: GripperColli
                                          ag.T_b_g[:0])
     givers, clear = handover_givers(plan.giver_picks, plan.free_grasps, known, arms[giver],
                                     collider, params.handover_params)
+    q_waiting = getattr(arms[other_arm(giver)].reach, "q_current", None) if other_arm(giver) in arms else None
+    blocked = 0
+    if check is not None and q_waiting is not None and len(givers):
+        givers, clear, blocked = waiting_receiver_last(givers, clear, q_waiting, check, giver)
     found, plan.stats["handover"] = plan_handovers(plan.geometry, support, givers, plan.free_grasps, arms, collider,
                                                    check, params.handover_params, clear, obstacles_b1, closed.points,
                                                    giver_arm=giver)
     plan.stats["handover"]["giver_arm"] = giver
+    plan.stats["handover"]["picks_against_the_waiting_arm"] = blocked
     plan.stats["handover"]["givers"] = {"reachable": len(givers), "tried": givers.tried, "why_not": givers.reasons}
     return found
 

@@ -217,3 +217,63 @@ def test_alternatives_try_another_giver_grasp_first(monkeypatch):
     monkeypatch.setattr(gh, "_search", search([0, 0, 0, 1]))
     found, _ = gh.plan_handovers(*one_giver, params=gh.HandoverParams(alternatives=3))
     assert [h.giver_index for h in found] == [0, 0, 0]
+
+
+def _givers(n: int):
+    from grasping._antipodal import GraspSet
+    from grasping._arms import ArmGrasps
+
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, 0, 3] = np.arange(n) * 0.01
+    g = GraspSet(0, T, np.full(n, 0.05), np.full(n, 0.04), np.zeros(n), np.linspace(1.0, 0.5, n))
+    q = np.tile(np.arange(n, dtype=float)[:, None], (1, 6))
+    return ArmGrasps("primary", g, np.arange(10, 10 + n), q, q + 100.0, T.copy(), tried=n)
+
+
+def test_picks_against_the_waiting_receiver_go_last_in_order():
+    """The task's first move takes the giver to its pre-grasp with the receiver still at rest: picks whose
+    arm meets it there (at the pre-grasp or the grasp) are tried after the others, each part in its order."""
+    from grasping._handover import waiting_receiver_last
+
+    givers, clear = _givers(5), [np.array([k]) for k in range(5)]
+    rest = np.full(6, -1.0)
+    calls = []
+
+    def check(q1, w1, q2, w2):  # (primary, secondary): pick 1 meets it at its pre-grasp, pick 3 at its grasp
+        calls.append((q1[0], q2[0], w2))
+        bad = q1[0] in (101.0, 3.0)
+        return (not bad, "primary gripper_base / secondary link8 collide" if bad else "")
+
+    out, clear2, moved = waiting_receiver_last(givers, clear, rest, check, "primary")
+    assert moved == 2
+    assert out.index.tolist() == [10, 12, 14, 11, 13]
+    assert [c[0] for c in clear2] == [0, 2, 4, 1, 3]
+    assert np.allclose(out.q[:, 0], [0, 2, 4, 1, 3]) and np.allclose(out.q_pre[:, 0], [100, 102, 104, 101, 103])
+    assert np.allclose(out.grasps.T_b1_g[:, 0, 3], [0.0, 0.02, 0.04, 0.01, 0.03])
+    assert all(c[1] == -1.0 and c[2] == 0.0 for c in calls)  # against the receiver at rest, closed
+    # the secondary giving: its configuration goes second in the check
+    seen = []
+    waiting_receiver_last(givers, clear, rest, lambda q1, w1, q2, w2: (seen.append(q2[0]) or True, ""), "secondary")
+    assert set(seen) <= {float(k) for k in range(5)} | {100.0 + k for k in range(5)}
+
+
+def test_the_grasp_stage_puts_a_pick_against_the_waiting_secondary_last():
+    """On the Piper with the real arm-against-arm check: a pick whose configuration reaches over to the waiting
+    secondary's shoulder goes after one clear of it."""
+    from bimanual_app.robots import load_robot
+    from grasping import load_gripper
+    from grasping._arms import TwoArmCheck
+    from grasping._handover import waiting_receiver_last
+
+    robot = load_robot("piper")
+    T_b1_b2 = facing_T_b1_b2(0.6)
+    check = TwoArmCheck(robot, load_gripper("piper"), T_b1_b2)
+    rest = robot.neutral()
+    givers, clear = _givers(2), [np.array([0]), np.array([1])]
+    reach_over = np.array([0.0, 2.6, -2.3, -1.5, 0.1, -1.3])  # the primary's link5 meets the secondary's link2
+    near_home = robot.neutral()
+    assert "secondary link2" in check(reach_over, 0.05, rest, 0.0)[1] and check(near_home, 0.05, rest, 0.0)[0]
+    givers.q[:] = [reach_over, near_home]
+    givers.q_pre[:] = [reach_over, near_home]
+    out, _, moved = waiting_receiver_last(givers, clear, rest, check)
+    assert moved == 1 and out.index.tolist() == [11, 10]
