@@ -261,9 +261,9 @@ class TaskMotion:
         """Joint waypoints through gripper poses, all arms on the same waypoints.
 
         poses: arm -> (K,4,4) gripper poses in b1; q0: arm -> (J,) start. Returns arm -> (K',J) (K' >= K),
-        each IK seeded by the previous solution, on one IK branch (:func:`bimanual_app.kinematics.follow_poses`,
-        the rule the grasp stage's reach check uses too); a branch switch or a pose out of reach raises
-        PlanFailure. (Fast joints are slowed by the time parametrisation.)
+        each IK seeded by the previous solution, on one IK branch (:func:`bimanual_app.kinematics.follow_poses`);
+        a branch switch or a pose out of reach raises PlanFailure. (Fast joints are slowed by the time
+        parametrisation.)
         """
         def solver(a):
             def solve(T, q, n_solutions, max_seeds):
