@@ -215,12 +215,18 @@ def _roles(arms: dict[str, Arm], giver: str, check: TwoArmCheck | None) -> _Role
     configurations, so a hand-over from the secondary swaps its arguments."""
     if giver not in ARM_NAMES:
         raise ValueError(f"giver must be one of {ARM_NAMES}, not {giver!r}")
-    receiver = other_arm(giver)
-    swapped = None
-    if check is not None and giver == "secondary":
-        def swapped(q_g, w_g, q_r, w_r):
-            return check(q_r, w_r, q_g, w_g)
-    return _Roles(arms[giver], arms[receiver], arms["secondary"].T_b1_b, swapped or check)
+    return _Roles(arms[giver], arms[other_arm(giver)], arms["secondary"].T_b1_b, _giver_first(check, giver))
+
+
+def _giver_first(check: TwoArmCheck | None, giver: str):
+    """``check``, which takes (primary, secondary) configurations, as ``check(q_giver, w_giver, q_receiver,
+    w_receiver)`` for a hand-over from ``giver`` (its arguments swapped when the secondary gives); None stays."""
+    if check is None or giver == "primary":
+        return check
+
+    def swapped(q_g, w_g, q_r, w_r):
+        return check(q_r, w_r, q_g, w_g)
+    return swapped
 
 
 def release_width(width: np.ndarray, contact_width: np.ndarray, params: HandoverParams) -> np.ndarray:
@@ -412,15 +418,10 @@ def waiting_receiver_last(givers: ArmGrasps, clear: list, q_receiver: np.ndarray
     starts) moved after the others, order kept within each part; ``clear`` reordered alike; and how many were
     moved. The task's first move takes the giver to that pre-grasp with the receiver still there: its goal
     check refuses such a pick whatever comes after (the same arm-against-arm world and margin)."""
-    def free(k: int) -> bool:
-        w = float(givers.grasps.width[k])
-        for q in (givers.q_pre[k], givers.q[k]):
-            ok = (check(q, w, q_receiver, 0.0) if giver_arm == "primary" else check(q_receiver, 0.0, q, w))[0]
-            if not ok:
-                return False
-        return True
-
-    ok = np.array([free(k) for k in range(len(givers))], dtype=bool)
+    clash = _giver_first(check, giver_arm)
+    w = givers.grasps.width
+    ok = np.array([all(clash(q, float(w[k]), q_receiver, 0.0)[0] for q in (givers.q_pre[k], givers.q[k]))
+                   for k in range(len(givers))], dtype=bool)
     order = np.r_[np.nonzero(ok)[0], np.nonzero(~ok)[0]].astype(int)
     moved = ArmGrasps(givers.arm, givers.grasps.take(order), givers.index[order], givers.q[order],
                       givers.q_pre[order], givers.T_b_g[order], givers.tried, givers.reasons)

@@ -566,7 +566,8 @@ def _search_handovers(plan: ObjectPlan, support: Support, collider: GripperColli
                                          ag.T_b_g[:0])
     givers, clear = handover_givers(plan.giver_picks, plan.free_grasps, known, arms[giver],
                                     collider, params.handover_params)
-    q_waiting = getattr(arms[other_arm(giver)].reach, "q_current", None) if other_arm(giver) in arms else None
+    receiver = other_arm(giver)
+    q_waiting = getattr(arms[receiver].reach, "q_current", None) if receiver in arms else None
     blocked = 0
     if check is not None and q_waiting is not None and len(givers):
         givers, clear, blocked = waiting_receiver_last(givers, clear, q_waiting, check, giver)

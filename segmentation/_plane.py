@@ -93,7 +93,7 @@ def _choose(points: np.ndarray, threshold: float, up: np.ndarray | None, cos_lev
     first level one holding at least a third of the first one's inliers; else (unless ``level_only``) the
     biggest.
     """
-    remaining, first, first_count, level = points, None, 0, []
+    remaining, first, first_count, fallback = points, None, 0, None
     for attempt in range(max_planes):
         if len(remaining) < min_points:
             break
@@ -106,16 +106,14 @@ def _choose(points: np.ndarray, threshold: float, up: np.ndarray | None, cos_lev
         is_level = abs(model[:3] @ up) / norm >= cos_level
         if is_level and near is not None and abs(model[3]) / norm < near:
             return model, remaining[inl]
-        if len(inl) < first_count / 3:
-            if near is None:
-                break  # the planes only get smaller: no level plane to prefer among them
-        elif is_level:
-            level.append((model, remaining[inl]))
-            if near is None:
-                break  # the first level one is the choice
+        big = len(inl) >= first_count / 3
+        if is_level and big and fallback is None:
+            fallback = (model, remaining[inl])
+        if near is None and (fallback is not None or not big):
+            break  # the first level one is the choice; past a small plane only smaller ones come
         remaining = np.delete(remaining, inl, axis=0)
-    if level:
-        return level[0]
+    if fallback is not None:
+        return fallback
     return None if level_only else first
 
 

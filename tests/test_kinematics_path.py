@@ -12,20 +12,16 @@ def _x_line(n: int, dx: float = WAYPOINT_STEP) -> np.ndarray:
     return np.stack([make_T(np.eye(3), [i * dx, 0.0, 0.0]) for i in range(n)])
 
 
-def _one_joint(f, reach: float = np.inf, branches=None):
+def _one_joint(f, reach: float = np.inf):
     """A solve function of a made-up one-joint arm whose joint is ``f(x)`` at the pose's x (m); beyond ``reach``
-    it fails; ``branches(x, q_seed)``, when given, picks the solution for a seed (an arm with two branches)."""
-    calls = []
-
+    it fails."""
     def solve(T, q_seed, n_solutions, max_seeds):
         x = float(T[0, 3])
-        calls.append((x, n_solutions, max_seeds))
         if x > reach + 1e-12:
             return IKResult(False, None, np.zeros((0, 1)), 1.0, 0.0, 0, max_seeds, "out of reach")
-        q = np.array([f(x) if branches is None else branches(x, q_seed)])
+        q = np.array([f(x)])
         return IKResult(True, q, q[None], 0.0, 0.0, 1, 1, "")
 
-    solve.calls = calls
     return solve
 
 
