@@ -97,17 +97,12 @@ def follow_poses(solve: dict[str, Solve], poses: dict[str, np.ndarray], q0: dict
 def _split_step(solve: dict[str, Solve], ends: dict, q: dict, max_jump: float) -> tuple[dict, PathFailure | None]:
     """One step of ``follow_poses``: arm -> (T0, T1) from the configurations ``q`` (arm -> (J,)), split in
     ``SPLITS`` parts until accepted. Returns (arm -> [sub-step solutions], None) or ({}, the failure)."""
-    from scipy.spatial.transform import Rotation, Slerp
-
     prev = np.inf
     for parts in SPLITS:
-        u = np.linspace(0.0, 1.0, parts + 1)[1:]
         sub, jump = {}, 0.0
         for a, (T0, T1) in ends.items():
-            R = Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([T0[:3, :3], T1[:3, :3]])))(u).as_matrix()
             qa, sub[a] = q[a], []
-            for i, ui in enumerate(u):
-                T = make_T(R[i], T0[:3, 3] + ui * (T1[:3, 3] - T0[:3, 3]))
+            for T in line_poses(T0, T1, parts + 1)[1:]:  # the step's sub-steps, its end last
                 r = solve[a](T, qa, 1, 4)
                 if r.success and np.max(np.abs(r.q - qa)) > max_jump / parts:
                     # the previous solution did not converge as a seed and another seed found another branch:
