@@ -35,6 +35,8 @@ def test_segment_distance_matches_dense_sampling():
     P = rng.normal(size=(150, 4, 3))
     P[:20, 1] = P[:20, 0]  # degenerate: a point
     P[20:40, 3] = P[20:40, 2] + 0.5 * (P[20:40, 1] - P[20:40, 0])  # parallel segments
+    P[40:60, 3] = P[40:60, 2]  # the second one a point (a sphere's capsule in a pair)
+    P[60:70, 1], P[60:70, 3] = P[60:70, 0], P[60:70, 2]  # both points
     d = segment_distance(P[:, 0], P[:, 1], P[:, 2], P[:, 3])
     s = np.linspace(0, 1, 201)
     A = P[:, None, 0] + s[None, :, None] * (P[:, None, 1] - P[:, None, 0])
@@ -42,6 +44,8 @@ def test_segment_distance_matches_dense_sampling():
     brute = np.linalg.norm(A[:, :, None] - B[:, None, :], axis=-1).min(axis=(1, 2))
     assert np.all(d <= brute + 1e-12)
     assert np.all(brute - d < 0.04)
+    # either order, the same distance
+    assert np.allclose(d, segment_distance(P[:, 2], P[:, 3], P[:, 0], P[:, 1]), atol=1e-12)
 
 
 def test_piper_shapes_are_capsules_except_the_gripper(world):

@@ -32,6 +32,9 @@ def segment_distance(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndar
     # s on the first segment: the unconstrained optimum, clamped (0 for parallel segments)
     s = np.where(denom > eps * np.maximum(a * e, eps), np.clip((b * f - c * e) / np.where(denom > 0, denom, 1.0), 0.0, 1.0), 0.0)
     s = np.where(a_ok, s, 0.0)
+    # the second segment a point: the first one's closest point to it (denom is 0 there, which left s at 0:
+    # the distance to the first segment's start, too large for a capsule pair with a sphere second)
+    s = np.where(a_ok & ~e_ok, np.clip(-c / a_safe, 0.0, 1.0), s)
     t = np.where(e_ok, (b * s + f) / e_safe, 0.0)
     # t outside [0, 1]: clamp it and recompute s for the clamped t
     t_lo = t < 0.0
