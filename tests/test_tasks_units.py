@@ -112,6 +112,38 @@ def test_robot_points_around_the_bases_are_not_obstacles():
     assert m.tolist() == [True, True, False, False, False]
 
 
+def test_points_where_the_arms_stand_at_the_start_are_not_obstacles():
+    """Stray points on the primary's gripper at its rest configuration (the Piper's rest holds it out 19 cm
+    from the base, 22 cm up: beyond the base columns) put the start in collision; they go from the map, and
+    nothing else does: not the table under the base, not an object 5 cm from the gripper."""
+    from bimanual_app.collision import CollisionWorld
+    from bimanual_app.robots import load_robot
+    from bimanual_app.tasks._motion import START_PAD, arms_at_start_mask
+    from tests._task_fixtures import FIX_T_B1_B2, table_points
+
+    robot = load_robot("piper")
+    q = {"primary": robot.neutral(), "secondary": robot.neutral()}
+    rng = np.random.default_rng(0)
+    stray = np.array([0.19, -0.01, 0.235]) + rng.normal(scale=0.004, size=(40, 3))  # on the primary's fingers
+    near = np.array([0.19, 0.0, 0.29]) + rng.normal(scale=0.002, size=(40, 3))  # 5 cm over them: an obstacle
+    table = table_points()
+    P = np.vstack([table, stray, near])
+    m = arms_at_start_mask(robot, FIX_T_B1_B2, P, q)
+    assert m[len(table):len(table) + 40].all() and not m[len(table) + 40:].any() and not m[:len(table)].any()
+    with_stray = CollisionWorld(robot, FIX_T_B1_B2, P, resolution=0.005)
+    assert not with_stray.valid(q["primary"], q["secondary"])
+    assert CollisionWorld(robot, FIX_T_B1_B2, P[~m], resolution=0.005).valid(q["primary"], q["secondary"])
+    # the padded space: a point just outside the pad past the fingertip capsule is kept
+    tip = CollisionWorld(robot, FIX_T_B1_B2)
+    a = tip.arms[0]
+    A, B, _ = a.points(a.placements(q["primary"][None]), with_samples=False)
+    k = a.shapes.names.index("link7")
+    reach = float(a.shapes.radius[k]) + START_PAD
+    axis = (B[0, k] - A[0, k]) / np.linalg.norm(B[0, k] - A[0, k])
+    probe = np.stack([B[0, k] + (reach - 0.002) * axis, B[0, k] + (reach + 0.002) * axis])
+    assert arms_at_start_mask(robot, FIX_T_B1_B2, probe, q).tolist() == [True, False]
+
+
 def test_carried_object_may_slide_past_a_touching_neighbour_but_not_hit_others():
     from bimanual_app.robots import load_robot
     from bimanual_app.tasks._motion import TaskMotion

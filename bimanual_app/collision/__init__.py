@@ -9,6 +9,7 @@ Public API:
         .valid(q1, q2=None) -> bool, .valid_batch(Q1, Q2=None) -> (N,) bool, .explain(q1, q2) -> [str]
         .distance(q1, q2=None) -> DistanceReport (coal distances, closest pairs)
         .cut(mask), .attach(arm, points_b1, q), .detach(arm), .motion_bound(arm, dq)
+        .near_arms(points_b1 (N,3), [q1, q2], pad) -> (N,) bool: the points the arms take up there
 """
 
 from bimanual_app.collision._scene_map import SceneMap, clear_shared_maps, shared_scene_map

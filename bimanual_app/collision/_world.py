@@ -30,7 +30,7 @@ import numpy as np
 from bimanual_app.collision._capsules import segment_distance
 from bimanual_app.collision._scene_map import SceneMap, shared_scene_map
 from bimanual_app.collision._shapes import ArmShapes, Shape, arm_shapes, obb_of_points
-from bimanual_app.transforms import check_T
+from bimanual_app.transforms import check_shape, check_T
 
 __all__ = ["CollisionWorld", "DistanceReport", "ARM_NAMES"]
 
@@ -318,6 +318,26 @@ class CollisionWorld:
         """Descriptions of the collisions of one configuration pair ([] when valid)."""
         Qs, n = self._configs([np.asarray(q1, float)[None]] + ([] if q2 is None else [np.asarray(q2, float)[None]]))
         return self._check(Qs, 1, explain=True)[1]
+
+    def near_arms(self, points_b1: np.ndarray, qs: list[np.ndarray], pad: float) -> np.ndarray:
+        """(N,) True for the points ``points_b1`` (N, 3) within ``pad`` m of an arm's bounding capsules with the
+        arms at ``qs`` (one (J,) configuration per arm, in order): the space the arms take up there, padded.
+        The base's shapes are left out, as in the checks against the map (the base stands on the table).
+        Capsules bound the exact shapes, so this is a superset of the points the exact shapes come within
+        ``pad`` of."""
+        P = check_shape("points_b1", np.asarray(points_b1, dtype=np.float64), (None, 3))
+        if len(qs) != self.n_arms:
+            raise ValueError(f"near_arms: one configuration per arm ({self.n_arms}), got {len(qs)}")
+        out = np.zeros(len(P), dtype=bool)
+        for arm, q in zip(self.arms, qs):
+            A, B, _ = arm.points(arm.placements(np.asarray(q, dtype=np.float64)[None]), with_samples=False)
+            A, B, reach = A[0], B[0], arm.shapes.radius + float(pad)
+            lo, hi = np.minimum(A, B) - reach[:, None], np.maximum(A, B) + reach[:, None]
+            for s in np.flatnonzero(~arm.fixed):  # a shape at a time, on the points in its padded bounding box
+                idx = np.flatnonzero(~out & np.all((P >= lo[s]) & (P <= hi[s]), axis=1))
+                if len(idx):
+                    out[idx] = segment_distance(A[s], B[s], P[idx], P[idx]) <= reach[s]
+        return out
 
     def _tables(self) -> dict:
         """Shape, sample and pair tables over all arms (cached; rebuilt after attach / detach)."""

@@ -29,9 +29,11 @@ import numpy as np
 from bimanual_app.kinematics import WAYPOINT_STEP, follow_poses, line_poses
 from bimanual_app.transforms import check_shape, check_T
 
-__all__ = ["PlanFailure", "TaskMotion", "translate_along", "line_poses", "robot_points_mask", "WAYPOINT_STEP", "BASE_RADIUS"]
+__all__ = ["PlanFailure", "TaskMotion", "translate_along", "line_poses", "robot_points_mask", "arms_at_start_mask",
+           "WAYPOINT_STEP", "BASE_RADIUS", "START_PAD"]
 
 BASE_RADIUS = 0.15  # m: background points this close to a base's vertical axis are the robot itself
+START_PAD = 0.02  # m: the arms' space at the start, padded by the free-motion margin (1 cm) and one more for the map
 # The grasping stage checks its grippers against a 3 mm octree with a 2 mm margin (2-5 mm of clearance in
 # effect); the task's map at 5 mm voxels with a 3 mm margin in contact (3-8 mm) keeps to nearly the same,
 # where 1 cm voxels with 4 mm (4-14 mm) refused approaches the grasping stage had found clear.
@@ -64,6 +66,23 @@ def robot_points_mask(points: np.ndarray, labels: np.ndarray, bases_b1: np.ndarr
         d -= np.outer(d @ up, up)
         mask |= np.linalg.norm(d, axis=1) < radius
     return mask & (np.asarray(labels) < 0) & (h > above)
+
+
+def arms_at_start_mask(robot, T_b1_b2: np.ndarray, points: np.ndarray, q_start: dict, pad: float = START_PAD
+                       ) -> np.ndarray:
+    """(N,) True for the cloud points ``points`` (N, 3) in b1 that lie in the space the arms take up at their
+    start configuration (``q_start``: arm -> (J,)), padded by ``pad`` m (their bounding capsules,
+    ``CollisionWorld.near_arms``).
+
+    Nothing but the arms can be there when the task starts, so what the cloud holds there is not an
+    obstacle: the arms themselves as a camera saw them, or a depth map's stray pixels. Kept in the map,
+    such points put the start configuration in collision and the task fails before it plans. Unlike
+    :func:`robot_points_mask` (a column around each base) this follows the arms wherever they stand.
+    """
+    from bimanual_app.collision import CollisionWorld
+
+    world = CollisionWorld(robot, check_T("T_b1_b2", T_b1_b2))
+    return world.near_arms(points, [q_start["primary"], q_start["secondary"]], pad)
 
 
 class PlanFailure(Exception):

@@ -335,17 +335,21 @@ def _plan_objects(opts, inputs, robot, cands, oid, q_start, width_start, rec: di
     that is only for judging); the first that passes is the task's plan. A failed preview moves on to the
     next candidate, up to MAX_PREVIEWS previews; if none passes, the first failed one is reported (and
     approved as 'fail')."""
-    from ._motion import BASE_RADIUS, robot_points_mask
+    from ._motion import BASE_RADIUS, START_PAD, arms_at_start_mask, robot_points_mask
     from ._preview import scene_bodies
 
     t_start = time.perf_counter()
     table = scene_bodies(inputs)[0]
     robot_pts = robot_points_mask(inputs.points, inputs.labels, np.stack([np.zeros(3), inputs.T_b1_b2[:3, 3]]),
                                   table.normal, -table.d)
-    if robot_pts.any():
+    at_start = arms_at_start_mask(robot, inputs.T_b1_b2, inputs.points, q_start) & ~robot_pts
+    if robot_pts.any() or at_start.any():
         rec["planning_map"] = {"robot_points_removed": int(robot_pts.sum()),
+                               "arms_at_start_points_removed": int(at_start.sum()),
                                "note": f"background points within {BASE_RADIUS} m of a base axis (the arms "
-                                       "seen by the cameras) are not obstacles"}
+                                       "seen by the cameras) and points within "
+                                       f"{START_PAD} m of the arms at their start configuration are not obstacles"}
+    robot_pts |= at_start
     order = [oid]
     if opts.object_id is None:
         order += [o for o in dict.fromkeys(c.object_id for c in cands) if o != oid][:MAX_FALLBACK_OBJECTS]
