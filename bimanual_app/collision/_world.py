@@ -331,10 +331,12 @@ class CollisionWorld:
         out = np.zeros(len(P), dtype=bool)
         for arm, q in zip(self.arms, qs):
             A, B, _ = arm.points(arm.placements(np.asarray(q, dtype=np.float64)[None]), with_samples=False)
-            A, B, reach = A[0], B[0], arm.shapes.radius + float(pad)
+            moving = np.flatnonzero(~arm.fixed)
+            A, B, reach = A[0, moving], B[0, moving], arm.shapes.radius[moving] + float(pad)
             lo, hi = np.minimum(A, B) - reach[:, None], np.maximum(A, B) + reach[:, None]
-            for s in np.flatnonzero(~arm.fixed):  # a shape at a time, on the points in its padded bounding box
-                idx = np.flatnonzero(~out & np.all((P >= lo[s]) & (P <= hi[s]), axis=1))
+            near = np.flatnonzero(np.all((P >= lo.min(axis=0)) & (P <= hi.max(axis=0)), axis=1))  # the arm's box
+            for s in range(len(A)):  # a shape at a time, on the points in its padded bounding box
+                idx = near[~out[near] & np.all((P[near] >= lo[s]) & (P[near] <= hi[s]), axis=1)]
                 if len(idx):
                     out[idx] = segment_distance(A[s], B[s], P[idx], P[idx]) <= reach[s]
         return out
