@@ -294,14 +294,16 @@ class ArmReach:
             return self.solver.solve_many(T, self.q_current, max_seeds=self.max_seeds, screen=True)
         cache = self._ik_cache
         keys = [(Tk.tobytes(), self.q_current.tobytes(), self.max_seeds) for Tk in T]
-        todo = [k for k, key in enumerate(keys) if key not in cache]
+        todo = {key: k for k, key in reversed(list(enumerate(keys))) if key not in cache}  # key -> first index
+        if todo and len(cache) + len(todo) > self.FIRST_IK_CACHE:
+            cache.clear()  # then this batch's poses that were remembered are solved again too
+            todo = {key: k for k, key in reversed(list(enumerate(keys)))}
         if todo:
-            if len(cache) + len(todo) > self.FIRST_IK_CACHE:
-                cache.clear()
             # screened by the closed form: most candidates far from the current configuration are out of reach
-            for k, r in zip(todo, self.solver.solve_many(T[todo], self.q_current, max_seeds=self.max_seeds,
-                                                         screen=True)):
-                cache[keys[k]] = r
+            idx = list(todo.values())
+            for key, r in zip(todo, self.solver.solve_many(T[idx], self.q_current, max_seeds=self.max_seeds,
+                                                           screen=True)):
+                cache[key] = r
         return [cache[key] for key in keys]
 
     def _collisions(self, Q: np.ndarray) -> str:

@@ -196,3 +196,18 @@ def test_the_approach_screen_changes_no_outcome(reach):
     assert screened.ok.tolist() == plain.ok.tolist() and 5 <= screened.ok.sum() <= 55
     assert np.allclose(screened.q[screened.ok], plain.q[plain.ok]) and (screened.flipped == plain.flipped).all()
     assert any("pre-grasp" in r and "closed-form branch" in r for r in screened.reason)
+
+
+def test_the_first_ik_cache_full_mid_batch_still_answers_every_pose(reach, monkeypatch):
+    """A batch that overflows the remembered IK clears it and solves its own remembered poses again (it
+    raised a KeyError for them when the cache was cleared under them)."""
+    _, f = reach
+    monkeypatch.setattr(type(f), "FIRST_IK_CACHE", 3)
+    T, far, new = _tilted(), _tilted(90.0), _tilted(45.0)
+    far[:3, 3] = [1.2, 0.0, 0.1]
+    f._ik_cache.clear()
+    first = f._first_ik(np.stack([T, far]))
+    both = f._first_ik(np.stack([far, new, T, new]))  # 2 remembered + 1 new > 3: cleared mid-batch
+    assert [r.success for r in both] == [first[1].success, both[1].success, first[0].success, both[1].success]
+    assert np.array_equal(both[2].q, first[0].q)
+    assert len(f._ik_cache) == 3
