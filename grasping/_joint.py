@@ -128,6 +128,13 @@ def _horiz(v: np.ndarray, up: np.ndarray) -> np.ndarray:
     return v - np.outer(v @ up, up) if v.ndim == 2 else v - (v @ up) * up
 
 
+# m: two push contacts lie at most this far apart across the squeeze (the presses' lever against each other).
+# A pair of contacts at each face's middle is up to 2 cm apart (the turned approaches' fingertips; 578 pairs
+# of the task bench's pipeline runs); contacts off the middle (``PushParams.laterals``) pair across from each
+# other within the same.
+MAX_COUPLE = 0.025
+
+
 def _push_terms(primary: ArmGrasps, secondary: ArmGrasps, i: int, j: int, c1: np.ndarray, c2: np.ndarray,
                 up: np.ndarray, d: np.ndarray, sep: float, mid: np.ndarray,
                 max_height_gap: float) -> tuple[float, float, int] | None:
@@ -144,6 +151,10 @@ def _push_terms(primary: ArmGrasps, secondary: ArmGrasps, i: int, j: int, c1: np
     dh = abs(float((c1[i] - c2[j]) @ up))
     if dh > max_height_gap:
         return None  # not at one height: the squeeze would twist the object
+    squeeze = _horiz(primary.grasps.extra["squeeze"][i], up)
+    across = np.cross(up, squeeze / max(float(np.linalg.norm(squeeze)), 1e-9))
+    if abs(float((c1[i] - c2[j]) @ across)) > MAX_COUPLE:
+        return None  # the two presses are not on one line: they turn the object instead of holding it
     zh1, zh2 = _horiz(primary.grasps.T_b1_g[i, :3, 2], up), _horiz(secondary.grasps.T_b1_g[j, :3, 2], up)
     tier = int(zh1 @ zh2 > -0.9 * np.linalg.norm(zh1) * np.linalg.norm(zh2))
     # for a squeeze the lateral offset of the line from the centre matters, not where along it

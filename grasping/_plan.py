@@ -68,7 +68,8 @@ class PlanParams:
         pass 3-5 mm over the table were accepted here and then touched the task's map.
     reach_tries / reach_want: grasps checked by each arm's reach filter, and enough reachable ones to stop.
     push_tries_per_face / push_want_per_face: each face's push contacts are checked for reach until
-        ``push_want_per_face`` pass, or ``push_tries_per_face`` were tried (None: all of them). All by default:
+        ``push_want_per_face`` pass, or ``push_tries_per_face`` were tried (None: all of them), at each place
+        across the face (``PushParams.laterals``) on its own. All by default:
         the check is closed-form IK (about 0.5 ms a contact), and an arm pushing the face of a large box a
         hand's width from its own base reaches 1-2 % of that face's contacts, often none of the first 30.
     push_spread: push contacts are checked for reach best first, but first those this far (m) from every
@@ -396,7 +397,9 @@ def _joint_pairs(plan: ObjectPlan, support: Support, collider: GripperCollider, 
             to_base /= np.maximum(np.linalg.norm(to_base, axis=1, keepdims=True), 1e-9)
             facing = np.einsum("nk,nk->n", -push.extra["squeeze"], to_base) > 0.3
             tries = len(push) if params.push_tries_per_face is None else params.push_tries_per_face
-            plan.push_reach[name] = reachable_by_group(push, arm, push.extra["face"], tries, params.push_want_per_face,
+            # (a pair's contacts are across from each other: each place across a face gets its own budget)
+            places = np.c_[push.extra["face"], push.extra["lateral"]]
+            plan.push_reach[name] = reachable_by_group(push, arm, places, tries, params.push_want_per_face,
                                                        prefer=facing)
         plan.stats["push_reach"] = {n: {"reachable": len(a), "tried": a.tried, "why_not": a.reasons}
                                     for n, a in plan.push_reach.items()}

@@ -15,7 +15,7 @@ pad, touch a vertical face of the object's gravity-aligned box:
   free of the object and the scene;
 - the fingertips on the face (the deepest fingertip corner touching the face plane, measured from the
   face's own points), at the height of the centre or a little above it (then the object hangs below the
-  squeeze line and does not tip);
+  squeeze line and does not tip), at the face's middle or off it (``laterals``);
 - both fingertips must land inside the face on its points -- seen, or filled in by symmetric completion
   (``_objects.complete_by_symmetry``; a face is often seen only in part) -- where a plane fitted to the
   points around each lies within the friction cone of the face normal; or, on a planar face, between
@@ -44,6 +44,10 @@ class PushParams:
     rolls: turns of the gripper about its approach (the closed pad is symmetric; for the arm's reach).
     heights: contact heights above the box centre, as fractions of the box's half height (above the centre:
         the object hangs below the squeeze line; higher is easier to reach for an arm on the table).
+    laterals: contact places across the face from its middle, as fractions of the face's half width: an arm
+        that reaches a face only near one of its edges (the far end of its reach, or its own base in the
+        way) still finds a contact there. A pair squeezes along one line (``grasping._joint``: the two
+        contacts level across the squeeze), so the other arm's contact sits across from it.
     tilts: approach tilts down from horizontal (radians; negative: pointing slightly up). The steepest (88
         degrees: the fingers hang beside the face and press it with their sides) is what a Piper reaches
         closest to its own base: on a bench scene it reached a face 14.5 cm from its base 18 times in 48,
@@ -87,6 +91,7 @@ class PushParams:
 
     rolls: tuple[float, ...] = (0.0, np.pi / 2, np.pi / 4, -np.pi / 4)
     heights: tuple[float, ...] = (0.3, 0.1, 0.5, 0.7)
+    laterals: tuple[float, ...] = (0.0, 0.4, -0.4)
     tilts: tuple[float, ...] = (np.deg2rad(-15.0), 0.0, np.deg2rad(20.0), np.deg2rad(40.0), np.deg2rad(55.0),
                                 np.deg2rad(70.0), np.deg2rad(80.0), np.deg2rad(88.0))
     swivels: tuple[float, ...] = (0.0, np.deg2rad(25.0), np.deg2rad(-25.0))
@@ -302,7 +307,8 @@ def _pads(geo: ObjectGeometry, face: _Face, tips: list[np.ndarray], R: np.ndarra
 def _face_rows(geo: ObjectGeometry, support: Support, face: _Face, tips: list[np.ndarray], all_corners: np.ndarray,
                cone_cos: float, params: PushParams, st: dict, bases_b1: np.ndarray | None = None) -> list[tuple]:
     """The candidates on ``face`` that pass the per-pose checks (pads on the face, gripper above the table),
-    as rows ``(T, face axis, face sign, height fraction, tilt, pad alignment, contact width, n, seen, contact)``.
+    as rows ``(T, face axis, face sign, height fraction, tilt, pad alignment, contact width, n, seen, contact,
+    lateral fraction)``.
     With ``bases_b1`` (B, 3), also the approaches aimed away from each base (``PushParams.aim_max``)."""
     up, ext, n = geo.T_b1_box[:3, 2], geo.extent, face.n
     aimed = () if bases_b1 is None else tuple(aimed_swivels(n, face.t, geo.centre + face.offset * n, bases_b1,
@@ -319,8 +325,8 @@ def _face_rows(geo: ObjectGeometry, support: Support, face: _Face, tips: list[np
              / sum(m.sum(axis=1) for m in deepest)[:, None])  # (F, 3) the touching corners' mean, in g
     corners = all_corners @ Rt  # (F, corners, 3) the gripper's corners, from o
     rows = []
-    for hf in params.heights:
-        c = geo.centre + face.offset * n + hf * 0.5 * ext[2] * up
+    for hf, lf in [(hf, lf) for lf in params.laterals for hf in params.heights]:
+        c = geo.centre + face.offset * n + lf * 0.5 * ext[1 - face.axis] * face.t + hf * 0.5 * ext[2] * up
         o = c + pen[:, None] * n  # (F, 3)
         landed, seen, align, inside = _pads(geo, face, tips, R, o, params)
         st["candidates"] += len(R)
@@ -335,7 +341,7 @@ def _face_rows(geo: ObjectGeometry, support: Support, face: _Face, tips: list[np
             T = np.eye(4)
             T[:3, :3], T[:3, 3] = R[f], o[f]
             rows.append((T, face.axis, face.sign, hf, tilts[f], align[f], ext[face.axis], n, seen[f] / len(tips),
-                         touch[f] @ R[f].T + o[f]))
+                         touch[f] @ R[f].T + o[f], lf))
     return rows
 
 
@@ -408,14 +414,16 @@ def _scored(geo: ObjectGeometry, collider: GripperCollider, others: SceneOctree,
     terms = {
         "antipodal": np.clip((np.array([r[5] for r in rows]) - cone_cos) / (1 - cone_cos), 0, 1)
                      * (0.5 + 0.5 * np.array([r[8] for r in rows])),
-        "centring": 1.0 - np.clip(np.abs(hf - 0.3) / 0.7, 0, 1),
+        # off the face's middle counts against it too: the middle first where an arm reaches both
+        "centring": 1.0 - np.clip(np.abs(hf - 0.3) / 0.7 + 0.5 * np.abs([r[10] for r in rows]), 0, 1),
         "clearance": clear,
         "approach": 1.0 - 0.5 * np.abs(tilt) / max_tilt,
         "contact": np.ones(len(rows)),
     }
     score = sum(WEIGHTS[k] * v for k, v in terms.items())
     gs = GraspSet(geo.id, T, wv, np.array([r[6] for r in rows]), np.full(len(rows), -params.press), score, terms,
-                  kind="push", extra={"face": np.array([(r[1], r[2]) for r in rows]), "squeeze": -nrm,
+                  kind="push", extra={"face": np.array([(r[1], r[2]) for r in rows]),
+                                      "lateral": np.array([r[10] for r in rows], dtype=np.float64), "squeeze": -nrm,
                                       "contact": np.array([r[9] for r in rows]), "retreats": retreats,
                                       "hold_off": params.standoff * nrm})
     return gs.take(np.argsort(-score))
@@ -442,7 +450,7 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
     st = stats if stats is not None else {}
     for k in _STAT_KEYS:
         st[k] = 0
-    rows = []  # (T, face axis, face sign, height fraction, tilt, pad alignment, contact width, n, seen, contact)
+    rows = []  # (T, face axis, face sign, height fraction, tilt, pad alignment, contact width, n, seen, contact, lateral)
     tops = {}  # (axis, sign) -> octree of the top face's points inside that face (see ``top_margin``)
     for axis in (0, 1):
         for sign in (1.0, -1.0):

@@ -606,3 +606,31 @@ def test_a_box_off_the_line_between_the_bases_is_squeezed_with_aimed_approaches(
         p_ag, s_ag = op.pair_grasps(pair)
         sq1, sq2 = p_ag.grasps.extra["squeeze"][pair.i_primary], s_ag.grasps.extra["squeeze"][pair.i_secondary]
         assert sq1 @ sq2 < -0.99
+
+
+def test_push_pairs_off_the_face_middle_where_the_arms_reach_only_there():
+    """Push contacts are also placed off each face's middle (``PushParams.laterals``): arms that reach a
+    large box's end faces only towards one of their edges still get a pair, the two contacts across from
+    each other (on one squeeze line); with contacts at the middle only they get none."""
+    from grasping import Arm, PushParams, callable_filter
+
+    P, L = make_cloud([Obj("box", (0.3, 0.0), (0.16, 0.32, 0.10), 0.0)], table_size=(0.8, 0.8))
+
+    def near_edge(T_b1_b):  # the reach of an arm that gets to x > 0.32 in b1 only (the predicate sees T_b_g)
+        return callable_filter(lambda T_b_g: (T_b1_b @ T_b_g)[:, 0, 3] > 0.32 - 1e-9)
+
+    arms = {"primary": Arm("primary", np.eye(4), near_edge(np.eye(4))),
+            "secondary": Arm("secondary", T12, near_edge(T12))}
+
+    def plan(push):
+        return plan_grasps(scene_cloud(P, L), arms=arms, T_b1_b2=T12,
+                           params=PlanParams(handover=False, retry_factor=1, push=push)).objects[0]
+
+    op = plan(PushParams())
+    assert op.mode == "joint" and op.joint, op.notes
+    for pair in op.joint:
+        c1, c2 = _centres(op, pair)
+        assert c1[0] > 0.32 and c2[0] > 0.32
+        assert abs(abs(c1[1]) - 0.16) < 0.01 and abs(abs(c2[1]) - 0.16) < 0.01 and c1[1] * c2[1] < 0  # both ends
+        assert abs(c1[0] - c2[0]) <= 0.02  # across from each other: one squeeze line
+    assert not plan(PushParams(laterals=(0.0,))).joint
