@@ -436,7 +436,8 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
     ``bases_b1`` (B, 3): the arms' base positions, for approaches aimed away from them (``PushParams.aim_max``).
 
     ``depth`` holds -press; ``contact_width`` the object's width between this face and the opposite one;
-    ``extra["face"]`` (n, 2) the box axis and side of the face; ``extra["squeeze"]`` (n, 3) the direction
+    ``extra["face"]`` (n, 2) the box axis and side of the face; ``extra["lateral"]`` (n,) the place across it
+    (one of ``params.laterals``); ``extra["squeeze"]`` (n, 3) the direction
     the gripper presses in (the face's inward normal, horizontal); ``extra["contact"]`` (n, 3) the point
     midway between the fingertips' contacts with the face; ``extra["retreats"]`` (n, 3, 3) the three ways in
     (unit directions from the contact to the pre-contact: along the face normal, along -z, up), NaN where that
