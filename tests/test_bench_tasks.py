@@ -156,3 +156,32 @@ def test_write_oracle_inputs_on_a_synthetic_scene(synth_none, tmp_path):
     T_b1_t = np.asarray(gt.extras["table"]["T_b1_t"])
     assert np.allclose(plane[:3], T_b1_t[:3, 2]) and abs(plane[:3] @ T_b1_t[:3, 3] + plane[3]) < 1e-9
     assert write_oracle_inputs(synth_none, work) == 0.0  # reused
+
+
+def test_two_runs_paired_scene_by_scene_from_their_progress_lines():
+    """tools/pair_task_runs.py reads the lines ``scene_line`` prints and says what a change gained and lost."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "tools" / "pair_task_runs.py"
+    spec = importlib.util.spec_from_file_location("pair_task_runs", path)
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+
+    def line(i, seed, outcomes):  # outcomes: mode -> task -> stage ("" = success)
+        rows = {m: {t: {"truth_ok": not st, "stage": st} for t, st in by.items()} for m, by in outcomes.items()}
+        res = {"seed": seed, "scene": f"synth_{seed:03d}", "rows": rows, "wall": 12.0}
+        return "[bench tasks] " + bench_tasks.scene_line(i, 3, res)
+
+    before = [line(1, 15000, {"pipeline": {"joint-grasp": "", "handover": "grasp"}}),
+              "some other output",
+              line(2, 15001, {"pipeline": {"joint-grasp": "reach", "handover": ""}}),
+              line(3, 5, {"pipeline": {"joint-grasp": "", "handover": ""}})]
+    after = [line(1, 15001, {"pipeline": {"joint-grasp": "", "handover": "preview"}}),
+             line(2, 15000, {"pipeline": {"joint-grasp": "", "handover": ""}})]
+    rows = {(r["mode"], r["task"]): r for r in tool.pair(tool.parse_lines(before), tool.parse_lines(after))}
+    assert set(rows) == {("pipeline", "joint-grasp"), ("pipeline", "handover")}  # seed 5: before only
+    jg, ho = rows[("pipeline", "joint-grasp")], rows[("pipeline", "handover")]
+    assert (jg["n"], jg["ok_before"], jg["ok_after"], jg["gained"], jg["lost"]) == (2, 1, 2, [15001], [])
+    assert (ho["ok_before"], ho["ok_after"], ho["gained"], ho["lost"]) == (1, 1, [15000], [(15001, "FAIL[preview]")])
+    assert tool.main(["only-one.log"]) == 2
