@@ -25,6 +25,7 @@ pad, touch a vertical face of the object's gravity-aligned box:
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -325,7 +326,7 @@ def _face_rows(geo: ObjectGeometry, support: Support, face: _Face, tips: list[np
              / sum(m.sum(axis=1) for m in deepest)[:, None])  # (F, 3) the touching corners' mean, in g
     corners = all_corners @ Rt  # (F, corners, 3) the gripper's corners, from o
     rows = []
-    for hf, lf in [(hf, lf) for lf in params.laterals for hf in params.heights]:
+    for lf, hf in itertools.product(params.laterals, params.heights):
         c = geo.centre + face.offset * n + lf * 0.5 * ext[1 - face.axis] * face.t + hf * 0.5 * ext[2] * up
         o = c + pen[:, None] * n  # (F, 3)
         landed, seen, align, inside = _pads(geo, face, tips, R, o, params)
@@ -410,12 +411,13 @@ def _scored(geo: ObjectGeometry, collider: GripperCollider, others: SceneOctree,
     clear = collider.clearance(others, T_off, wv, CLEARANCE_LEVELS) / CLEARANCE_LEVELS[-1]
     tilt = np.array([r[4] for r in rows])
     hf = np.array([r[3] for r in rows])
+    lateral = np.array([r[10] for r in rows], dtype=np.float64)
     max_tilt = max(max(params.tilts), 1e-9)
     terms = {
         "antipodal": np.clip((np.array([r[5] for r in rows]) - cone_cos) / (1 - cone_cos), 0, 1)
                      * (0.5 + 0.5 * np.array([r[8] for r in rows])),
         # off the face's middle counts against it too: the middle first where an arm reaches both
-        "centring": 1.0 - np.clip(np.abs(hf - 0.3) / 0.7 + 0.5 * np.abs([r[10] for r in rows]), 0, 1),
+        "centring": 1.0 - np.clip(np.abs(hf - 0.3) / 0.7 + 0.5 * np.abs(lateral), 0, 1),
         "clearance": clear,
         "approach": 1.0 - 0.5 * np.abs(tilt) / max_tilt,
         "contact": np.ones(len(rows)),
@@ -423,7 +425,7 @@ def _scored(geo: ObjectGeometry, collider: GripperCollider, others: SceneOctree,
     score = sum(WEIGHTS[k] * v for k, v in terms.items())
     gs = GraspSet(geo.id, T, wv, np.array([r[6] for r in rows]), np.full(len(rows), -params.press), score, terms,
                   kind="push", extra={"face": np.array([(r[1], r[2]) for r in rows]),
-                                      "lateral": np.array([r[10] for r in rows], dtype=np.float64), "squeeze": -nrm,
+                                      "lateral": lateral, "squeeze": -nrm,
                                       "contact": np.array([r[9] for r in rows]), "retreats": retreats,
                                       "hold_off": params.standoff * nrm})
     return gs.take(np.argsort(-score))

@@ -294,10 +294,10 @@ class ArmReach:
             return self.solver.solve_many(T, self.q_current, max_seeds=self.max_seeds, screen=True)
         cache = self._ik_cache
         keys = [(Tk.tobytes(), self.q_current.tobytes(), self.max_seeds) for Tk in T]
-        todo = {key: k for k, key in reversed(list(enumerate(keys))) if key not in cache}  # key -> first index
+        todo = {key: k for k, key in enumerate(keys) if key not in cache}  # key -> an index of that pose
         if todo and len(cache) + len(todo) > self.FIRST_IK_CACHE:
             cache.clear()  # then this batch's poses that were remembered are solved again too
-            todo = {key: k for k, key in reversed(list(enumerate(keys)))}
+            todo = {key: k for k, key in enumerate(keys)}
         if todo:
             # screened by the closed form: most candidates far from the current configuration are out of reach
             idx = list(todo.values())

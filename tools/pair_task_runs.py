@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import re
 import sys
+from collections import defaultdict
 from pathlib import Path
 
 USAGE = "usage: tools/pair_task_runs.py BEFORE.log [...] -- AFTER.log [...]"
@@ -37,8 +38,6 @@ def parse_lines(lines) -> dict:
 def pair(before: dict, after: dict) -> list[dict]:
     """Per (mode, task) present in both: ``{mode, task, n, ok_before, ok_after, gained, lost}``; ``gained`` the
     seeds that succeed only after, ``lost`` ``(seed, outcome after)`` of those that succeed only before."""
-    from collections import defaultdict
-
     keys = defaultdict(list)
     for k in sorted(set(before) & set(after)):
         keys[k[:2]].append(k)
