@@ -25,6 +25,10 @@ when
   (flange, palm, fingers) against the map are left to the grasp sampler's exact checks (swept, against
   the object's own points and the rest of the scene), which the world's coarser voxels and margin would
   otherwise overrule for every grasp, whose fingers are by design close to the object and the table.
+- the pre-grasp, where the task's free motion ends (its goal), is free of collisions with the whole arm,
+  gripper included, at that motion's clearance (``goal_margin`` on a ``goal_resolution`` map, the task
+  planner's settings): the sampler's sweep passes a gripper that clears the scene by less, which the
+  planner then cannot move to.
 """
 
 from __future__ import annotations
@@ -88,12 +92,16 @@ class ArmReach:
         n_solutions: IK branches tried for the approach (distinct solutions of the grasp pose).
         q_current: (J,) configuration the closest IK solution is sought to (default: the rest pose).
         resolution: voxel size of the collision scene map (m).
+        goal_margin, goal_resolution: the clearance (m) the whole arm keeps at the pre-grasp from the scene map
+            and that map's voxel size (m): the task planner's free-motion margin and map resolution
+            (``TaskMotion``), since the pre-grasp is its free motion's goal; ``goal_margin=None``: not checked.
     """
 
     def __init__(self, robot, gripper, T_b1_b: np.ndarray | None = None, scene_points_b1: np.ndarray | None = None,
                  pregrasp: float = 0.09, margin: float = 0.004, max_seeds: int = 6, max_step: float = 0.6,
                  q_current: np.ndarray | None = None, resolution: float = 0.01, name: str = "primary",
-                 n_solutions: int = 3, _solver=None):
+                 n_solutions: int = 3, goal_margin: float | None = 0.01, goal_resolution: float = 0.005,
+                 _solver=None):
         from bimanual_app.kinematics import IKSolver
 
         self.robot = robot
@@ -106,15 +114,19 @@ class ArmReach:
         self.max_step = float(max_step)
         self.resolution = float(resolution)
         self.n_solutions = int(n_solutions)
+        self.goal_margin = None if goal_margin is None else float(goal_margin)
+        self.goal_resolution = float(goal_resolution)
         self.q_current = robot.neutral() if q_current is None else np.asarray(q_current, dtype=np.float64)
         self.solver = _solver or IKSolver(robot, link=robot.tcp_link)
         self._ik_cache: dict = {}  # see ``_first_ik``; shared with ``with_pregrasp`` copies (same arm, same IK)
         self._reach_cache: dict = {}  # see ``__call__``; shared with ``with_pregrasp`` copies (same world)
-        self.world = None
+        self.world = self.goal_world = None
         if scene_points_b1 is not None:
-            self.world = self._world(scene_points_b1)
+            self.world, self.goal_world = self._worlds(scene_points_b1)
 
-    def _world(self, points_b1: np.ndarray):
+    def _worlds(self, points_b1: np.ndarray) -> tuple:
+        """The collision worlds of the grasp and approach check, and of the pre-grasp (goal) check (None when
+        ``goal_margin`` is None), for scene points (N, 3) in b1; (None, None) when the arm can touch none."""
         from bimanual_app.collision import CollisionWorld, SceneMap
 
         P = np.asarray(points_b1, dtype=np.float64).reshape(-1, 3)
@@ -122,13 +134,20 @@ class ArmReach:
         # only what the arm can touch: within its reach (plus its thickness) of the base, not below it
         P_b = P_b[(np.linalg.norm(P_b, axis=1) < self.solver.reach + 0.25) & (P_b[:, 2] > -0.05)]
         if len(P_b) == 0:
-            return None
-        # the world is built in the arm's own base frame (its primary slot has an identity base)
+            return None, None
+        # this world is built in the arm's own base frame (its primary slot has an identity base)
         scene = SceneMap(P_b, self.resolution, pad=0.2, source="scene map")
         # the gripper's own shapes against the scene are left out: the grasp planner has checked them already,
         # exactly (swept, against the octree and the object's own points), while this world's coarser map
         # (``resolution`` voxels plus ``margin``) would reject fingertips that pass just above the table
-        return CollisionWorld(self.robot, None, scene, margin=self.margin, scene_exempt=tuple(self.gripper.links))
+        world = CollisionWorld(self.robot, None, scene, margin=self.margin, scene_exempt=tuple(self.gripper.links))
+        if self.goal_margin is None:
+            return world, None
+        # the goal world keeps to the task planner's map: in b1 (its voxels where the planner's are; a map in
+        # the secondary's base frame would voxelise the same points differently, by up to a voxel), shared by
+        # both arms' filters (``shared_scene_map``: the same points give the same map)
+        return world, CollisionWorld(self.robot, None, P, resolution=self.goal_resolution, margin=self.goal_margin,
+                                     crop=False, T_b1_b=self.T_b1_b)
 
     @property
     def _pose_map(self):
@@ -264,7 +283,7 @@ class ArmReach:
         """The same filter with another scene map (points (N, 3) in b1); shares the IK solver."""
         return ArmReach(self.robot, self.gripper, self.T_b1_b, points_b1, self.pregrasp, self.margin,
                         self.max_seeds, self.max_step, self.q_current, self.resolution, self.name, self.n_solutions,
-                        _solver=self.solver)
+                        self.goal_margin, self.goal_resolution, _solver=self.solver)
 
     def _approach(self, T: np.ndarray, q: np.ndarray, retreat: np.ndarray | None = None,
                   hold_off: np.ndarray | None = None) -> tuple[np.ndarray | None, list[np.ndarray], str]:
@@ -314,6 +333,17 @@ class ArmReach:
             why = self.world.explain(Q[k]) or ["in collision"]
             return f"{'grasp' if k == 0 else 'approach'} in collision: {why[0]}"
         return ""
+
+    def goal_problems(self, q: np.ndarray, width: float) -> list[str]:
+        """What the whole arm at configuration q (J,), its gripper open ``width`` m, touches within the task
+        planner's free-motion margin (``goal_margin``) of the scene map; [] when nothing (or unchecked):
+        the check of a free motion's goal, as at the pre-grasp."""
+        if self.goal_world is None:
+            return []
+        self.goal_world.set_opening(0, self.gripper.robot_opening(float(width)))
+        if self.goal_world.valid(np.asarray(q, dtype=np.float64)):
+            return []
+        return self.goal_world.explain(np.asarray(q, dtype=np.float64)) or ["in collision"]
 
     REACH_CACHE = 4096  # grasps whose whole check (IK, approach, collisions) is remembered
 
@@ -431,6 +461,10 @@ class ArmReach:
             if bad:
                 why[i].append(bad)
                 return False
+        goal = self.goal_problems(q_pre, float(w[i]))
+        if goal:
+            why[i].append(f"pre-grasp within the free motion's margin of the scene: {goal[0]}")
+            return False
         out.ok[i], out.q[i], out.q_pre[i], out.flipped[i] = True, q, q_pre, flip
         return True
 

@@ -211,3 +211,40 @@ def test_the_first_ik_cache_full_mid_batch_still_answers_every_pose(reach, monke
     assert [r.success for r in both] == [first[1].success, both[1].success, first[0].success, both[1].success]
     assert np.array_equal(both[2].q, first[0].q)
     assert len(f._ik_cache) == 3
+
+
+def test_a_pregrasp_nearer_the_scene_than_the_free_motion_margin_is_not_reached(reach):
+    """The pre-grasp is where the task's free motion ends: a patch of points 8 mm in front of the fingertips
+    there (inside the planner's 1 cm free-motion margin; the reach world leaves the gripper's own shapes to
+    the sampler's swept check) rejects the grasp, one 3 cm in front does not, and without the goal check
+    neither does."""
+    robot, f = reach
+    gripper = load_gripper("piper")
+    T = _tilted()
+    res = f(T[None], np.array([0.05]))
+    assert res.ok[0]
+    T_pre = robot.fk_link(res.q_pre[0], robot.tcp_link)  # the gripper where the free motion ends (b1 = b)
+    xx, yy = np.meshgrid(np.linspace(-0.015, 0.015, 7), np.linspace(-0.045, 0.045, 19))
+
+    def ahead(gap: float) -> np.ndarray:  # (133, 3) a 3 x 9 cm patch ``gap`` m in front of the fingertips
+        return np.c_[xx.ravel(), yy.ravel(), np.full(xx.size, gap)] @ T_pre[:3, :3].T + T_pre[:3, 3]
+
+    near = ArmReach(robot, gripper, _solver=f.solver).for_scene(ahead(0.008))
+    out = near(T[None], np.array([0.05]))
+    assert not out.ok[0]  # (its reason is the last branch's: the turned grasp's pre-grasp is out of reach)
+    assert any("touches the scene map" in x for x in near.goal_problems(res.q_pre[0], 0.05))
+    far = ArmReach(robot, gripper, _solver=f.solver).for_scene(ahead(0.03))
+    assert far(T[None], np.array([0.05])).ok[0] and far.goal_problems(res.q_pre[0], 0.05) == []
+    unchecked = ArmReach(robot, gripper, goal_margin=None, _solver=f.solver).for_scene(ahead(0.008))
+    assert unchecked(T[None], np.array([0.05])).ok[0]
+
+
+def test_the_goal_check_keeps_to_the_task_planners_free_motion_settings():
+    """The reach filter's pre-grasp check mirrors the task planner's free motion (its margin and map)."""
+    import inspect
+
+    from bimanual_app.tasks._motion import MAP_RESOLUTION, TaskMotion
+
+    f = inspect.signature(ArmReach.__init__).parameters
+    assert f["goal_margin"].default == inspect.signature(TaskMotion.__init__).parameters["margin"].default
+    assert f["goal_resolution"].default == MAP_RESOLUTION

@@ -178,13 +178,16 @@ class CollisionWorld:
         crop: drop scene points farther than reach + 0.3 m from every base (they cannot matter).
         scene_exempt: link names whose shapes are not checked against the scene (still against the other
             arm and the arm itself): e.g. a gripper whose scene clearance a finer check already decided.
+        T_b1_b: (4,4) base of the first arm in b1 (default identity: the primary); a single-arm world of the
+            secondary is ``CollisionWorld(robot, None, scene, T_b1_b=T_b1_b2)``, against the same map in b1.
     """
 
     def __init__(self, robot, T_b1_b2: np.ndarray | None = None, scene=None, *, robot2=None,
                  resolution: float = 0.01, margin: float = 0.01, self_margin: float = 0.0,
-                 openings: tuple[float, float] = (0.0, 0.0), crop: bool = True, scene_exempt: tuple[str, ...] = ()):
+                 openings: tuple[float, float] = (0.0, 0.0), crop: bool = True, scene_exempt: tuple[str, ...] = (),
+                 T_b1_b: np.ndarray | None = None):
         step = resolution  # broad-phase sample spacing along capsules
-        self.arms = [_Arm(ARM_NAMES[0], robot, np.eye(4), openings[0], step)]
+        self.arms = [_Arm(ARM_NAMES[0], robot, np.eye(4) if T_b1_b is None else T_b1_b, openings[0], step)]
         if T_b1_b2 is not None:
             self.arms.append(_Arm(ARM_NAMES[1], robot2 or robot, T_b1_b2, openings[1], step))
         self.margin = float(margin)
