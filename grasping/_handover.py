@@ -470,8 +470,8 @@ def plan_handovers(geo: ObjectGeometry, support: Support, giver: ArmGrasps, free
     The search budget (``params.max_transfer_checks``) is shared: alternatives only use what the first left.
     Arguments as for :func:`plan_handover`."""
     n = params.alternatives if n is None else int(n)
-    stats = {"transfer_poses": 0, "object_in_scene": 0, "giver_reached": 0, "clear_receivers": 0,
-             "receiver_candidates": 0, "receiver_reached": 0}
+    stats = {"transfer_poses": 0, "object_in_scene": 0, "giver_reached": 0, "giver_goal_blocked": 0,
+             "clear_receivers": 0, "receiver_candidates": 0, "receiver_reached": 0}
     found: list[Handover] = []
     if len(giver) == 0 or len(free) == 0 or "secondary" not in arms or n < 1:
         return found, stats
@@ -677,6 +677,11 @@ def _search(geo, support, giver, free, roles, collider, params, clear, obstacles
         Gt = T_move @ G
         rg = prim.reach((T_b_b1 @ Gt)[None], np.array([giver.grasps.width[gi]]))
         if not rg.ok[0]:
+            continue
+        # the carry's free motion ends with the giver here, holding the object: its goal is this configuration
+        goal_problems = getattr(prim.reach, "goal_problems", None)
+        if goal_problems is not None and goal_problems(rg.q[0], float(giver.grasps.contact_width[gi])):
+            stats["giver_goal_blocked"] += 1
             continue
         stats["giver_reached"] += 1
         move = T_move

@@ -123,6 +123,30 @@ def test_plan_handovers_finds_poses_where_each_arm_reaches_only_from_its_own_sid
     assert np.allclose(h.T_move[:3, :3] @ op.geometry.centre + h.T_move[:3, 3], h.centre)
 
 
+class _GoalBlocked(_Cone):
+    """A ``_Cone`` whose every configuration comes within the free-motion margin of the scene
+    (``ArmReach.goal_problems``): its pre-grasps pass (the filter's own check), its free motions' goals not."""
+
+    def goal_problems(self, q, width):
+        return ["gripper_base touches the scene map"]
+
+
+def test_a_transfer_the_givers_free_motion_cannot_end_at_is_skipped():
+    """The carry's free motion ends with the giver at the transfer pose: where that configuration is within
+    the planner's free-motion margin of the scene (``goal_problems``), the transfer pose is skipped and
+    counted; the same arms without that check find the hand-over of the test above."""
+    from grasping import Arm, PlanParams, plan_grasps, scene_cloud
+
+    T12 = facing_T_b1_b2(0.6)
+    P, L = make_cloud([Obj("box", (0.3, 0.2), (0.05, 0.05, 0.08), 0.3)], table_size=(0.8, 0.8))
+    arms = {"primary": Arm("primary", np.eye(4), _GoalBlocked(10.0, (0.0, 5.0))),
+            "secondary": Arm("secondary", T12, _GoalBlocked(8.0, (35.0, 45.0)))}
+    op = plan_grasps(scene_cloud(P, L), arms=arms, T_b1_b2=T12, params=PlanParams(retry_factor=1)).objects[0]
+    assert op.handover is None  # (nor with the secondary giving: its goals are blocked too)
+    st = op.stats["handover"]
+    assert st["giver_goal_blocked"] > 0 and st["giver_reached"] == 0
+
+
 def test_the_secondary_gives_where_the_primary_reaches_no_pick():
     """The primary reaches nothing on the table, only grasps in the air tilted 35-45 degrees down from its
     own side; the secondary reaches every grasp on the table and level ones from its side in the air: the
