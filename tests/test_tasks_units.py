@@ -625,3 +625,29 @@ def test_preview_bodies_are_the_grasping_stages_primitives_where_it_determined_o
     inputs = SimpleNamespace(points=pts, labels=labels, seg_extras={}, grasps={"objects": objs[:1]})
     _, shapes, _ = scene_bodies(inputs)
     assert np.allclose(shapes[0].size, [0.3, 0.2, 0.1], atol=1e-3) and shapes[1].size[0] < 0.06
+
+
+def test_transfer_goals_keep_the_wrist_branch_the_giver_can_back_off_from():
+    """Two IK solutions of one giver pose at a transfer: wrist joints 4 and 6 half a turn apart, joint 5
+    negated (a bench scene's OMPL goal and the grasp stage's). From the one with joint 4 0.12 rad from its
+    limit every retreat leaves the branch, so only the other is kept; alone, it is kept (the retreat then
+    says why it fails)."""
+    from _task_fixtures import FIX_T_B1_B2, box_surface_points, table_points
+
+    from bimanual_app.robots import load_robot
+    from bimanual_app.tasks._motion import TaskMotion
+    from bimanual_app.tasks._planners import _retreatable
+
+    robot = load_robot("piper")
+    obj = box_surface_points([0.3, 0.0, 0.03], [0.05, 0.05, 0.06])
+    motion = TaskMotion(robot, FIX_T_B1_B2, np.vstack([table_points(), obj]), obj, obj)
+    q_free = np.array([0.899, 1.271, -0.537, -1.518, 0.674, 2.013])
+    T = robot.fk_link(q_free[None], robot.tcp_link)[0]
+    # the same pose on the other wrist branch: joint 4 at 1.62 (limit 1.745); the wrist's axes pass 0.2 mm
+    # apart, so IK finds the exact solution near the flipped joints
+    q_limit = motion.ik("primary", T, q_free + np.array([0.0, 0.0, 0.0, np.pi, -2 * q_free[4], -np.pi]))[0]
+    assert abs(q_limit[3] - 1.624) < 0.01 and abs(q_limit[4] + 0.674) < 0.01
+    up = np.array([0.0, 0.0, 1.0])
+    kept = _retreatable(motion, "primary", np.stack([q_limit, q_free]), T, up)
+    np.testing.assert_allclose(kept, q_free[None])
+    np.testing.assert_allclose(_retreatable(motion, "primary", q_limit[None], T, up), q_limit[None])

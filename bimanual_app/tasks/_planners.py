@@ -212,6 +212,27 @@ def _approachable(motion: TaskMotion, arm: str, sols: np.ndarray, T_pre: np.ndar
     return np.stack(ok)
 
 
+def _retreatable(motion: TaskMotion, arm: str, sols: np.ndarray, T: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """Of the IK solutions ``sols`` (K, J) of gripper pose ``T`` (4, 4), those (order kept) from which the open
+    gripper can back off ``RETREAT_MIN`` along one of its retreat directions on one IK branch; all of them
+    when none can (the retreat then reports why).
+
+    A free motion's goal decides the IK branch of the straight moves after it: at a transfer pose, a
+    solution with a wrist joint at its limit (the same gripper pose with joints 4 and 6 turned half a turn
+    and joint 5 negated) reaches the pose, but no retreat from it stays on its branch."""
+    def follows(q):
+        for _, d in _retreat_directions(T, up):
+            try:
+                motion.ik_path({arm: line_poses(T, translate_along(T, d, RETREAT_MIN))}, {arm: q})
+                return True
+            except PlanFailure:
+                pass
+        return False
+
+    ok = np.array([follows(q) for q in sols], dtype=bool)
+    return sols[ok] if ok.any() else sols
+
+
 def _goal_ik(motion: TaskMotion, arm: str, T: np.ndarray, seeds: list) -> np.ndarray:
     """IK solutions for T, trying the grasping stage's solution as the first seed."""
     last = None
@@ -754,7 +775,8 @@ def _handover_transfer(H: _Handover, plan: TaskPlan, attach: tuple, carry_pad: f
     pre_rec = _pre(motion, rec)
     with motion.context("attached", openings={H.g: H.cw_g, H.r: w0}, attach=attach,
                         object_padding=carry_pad):
-        sols = _goal_ik(motion, H.g, H.gt.T_b1_g, [H.gt.q, q[H.g]])
+        sols = _retreatable(motion, H.g, _goal_ik(motion, H.g, H.gt.T_b1_g, [H.gt.q, q[H.g]])[:4],
+                            H.gt.T_b1_g, H.up)
         if not all(any(H.r in w for w in motion.problems({**q, H.g: s_})) for s_ in sols[:4]):
             tr = motion.plan_free([H.g], q, [{H.g: s} for s in sols[:4]])[H.g]
             plan.add(Phase("transfer", {H.g: _jt(tr.times, tr.q, CLOSED)}, "object carried to the transfer pose",
