@@ -259,17 +259,28 @@ class ArmReach:
 
         Steps of at most 2 cm: near the wrist singularity (joint 5 near 0) joints 4 and 6 trade large
         opposite turns over a few centimetres, which coarser steps would take for a jump between branches."""
-        prev = np.asarray(q, dtype=np.float64)
         n = max(3, int(np.ceil(distance / 0.02)))
-        for s in np.arange(1, n + 1) / n:
-            res = self.solver.solve(pregrasp_pose(T_b_g, s * distance, np.asarray(direction_b, dtype=np.float64)),
-                                    q_current=prev, max_seeds=4)
-            if not res.success:
-                return f"{s * distance * 100:.0f} cm along: {res.message.split(' (best')[0]}"
-            if np.max(np.abs(res.q - prev)) > self.max_step:
-                return f"{s * distance * 100:.0f} cm along: a jump between IK branches"
+        along = np.arange(1, n + 1) / n * distance
+        d = np.asarray(direction_b, dtype=np.float64)
+        _, k, res = self._walk([pregrasp_pose(T_b_g, a, d) for a in along], q)
+        if k < 0:
+            return ""
+        why = "a jump between IK branches" if res.success else res.message.split(" (best")[0]
+        return f"{along[k] * 100:.0f} cm along: {why}"
+
+    def _walk(self, poses: list[np.ndarray], q: np.ndarray) -> tuple[list[np.ndarray], int, object]:
+        """IK through ``poses`` (each (4, 4)), each seeded with the solution before (the first with q (J,)), no
+        joint moving more than ``max_step`` between neighbours (a line the arm can follow, not a jump between
+        IK branches). Returns (the solutions found, in order; the index of the pose that failed, -1 when none
+        did; that pose's IKResult: unsolved, or solved on another branch)."""
+        qs, prev = [], np.asarray(q, dtype=np.float64)
+        for k, Tk in enumerate(poses):
+            res = self.solver.solve(Tk, q_current=prev, max_seeds=4)
+            if not res.success or np.max(np.abs(res.q - prev)) > self.max_step:
+                return qs, k, res
+            qs.append(res.q)
             prev = res.q
-        return ""
+        return qs, -1, None
 
     def with_pregrasp(self, pregrasp: float) -> ArmReach:
         """The same filter (solver and scene map shared) checking pre-grasps ``pregrasp`` metres back."""
@@ -290,17 +301,12 @@ class ArmReach:
         """IK along the straight approach from the grasp back to the pre-grasp, seeded step by step; with
         ``hold_off`` (3,), first the held-off pose, then the line from it to the pre-grasp."""
         poses, where = _approach_poses(T, self.pregrasp, retreat, hold_off)
-        qs = []
-        prev = q
-        for Tk, at in zip(poses, where):
-            res = self.solver.solve(Tk, q_current=prev, max_seeds=4)
-            if not res.success:
-                return None, qs, f"{at}: {res.message}"
-            if np.max(np.abs(res.q - prev)) > self.max_step:
-                return None, qs, "the straight approach needs a jump between IK branches"
-            qs.append(res.q)
-            prev = res.q
-        return prev, qs, ""
+        qs, k, res = self._walk(poses, q)
+        if k < 0:
+            return qs[-1], qs, ""
+        if res.success:
+            return None, qs, "the straight approach needs a jump between IK branches"
+        return None, qs, f"{where[k]}: {res.message}"
 
     FIRST_IK_CACHE = 4096  # grasp poses whose IK (from q_current) is remembered
 
