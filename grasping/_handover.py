@@ -668,6 +668,9 @@ def _search(geo, support, giver, free, roles, collider, params, clear, obstacles
     prim, sec = roles.giver, roles.receiver
     with_pre = getattr(sec.reach, "with_pregrasp", None)
     rec_reach = with_pre(params.receiver_pregrasp) if with_pre is not None else sec.reach
+    # the carry's free motion ends with the giver at the transfer pose, holding the object: that configuration
+    # is its goal (``ArmReach.goal_problems``; a filter without it checks nothing there)
+    goal_problems = getattr(prim.reach, "goal_problems", None)
     T_b_b1 = inv_T(prim.T_b1_b)
     scene_clear, obj_pts = _scene_clearance(geo, support, roles, params, obstacles_b1, object_points_b1)
     cands = _ranked_transfers(geo, support, giver, free, roles, collider, params, clear, scene_clear, obj_pts, stats)
@@ -678,8 +681,6 @@ def _search(geo, support, giver, free, roles, collider, params, clear, obstacles
         rg = prim.reach((T_b_b1 @ Gt)[None], np.array([giver.grasps.width[gi]]))
         if not rg.ok[0]:
             continue
-        # the carry's free motion ends with the giver here, holding the object: its goal is this configuration
-        goal_problems = getattr(prim.reach, "goal_problems", None)
         if goal_problems is not None and goal_problems(rg.q[0], float(giver.grasps.contact_width[gi])):
             stats["giver_goal_blocked"] += 1
             continue

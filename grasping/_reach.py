@@ -346,10 +346,11 @@ class ArmReach:
         the check of a free motion's goal, as at the pre-grasp."""
         if self.goal_world is None:
             return []
+        q = np.asarray(q, dtype=np.float64)
         self.goal_world.set_opening(0, self.gripper.robot_opening(float(width)))
-        if self.goal_world.valid(np.asarray(q, dtype=np.float64)):
+        if self.goal_world.valid(q):
             return []
-        return self.goal_world.explain(np.asarray(q, dtype=np.float64)) or ["in collision"]
+        return self.goal_world.explain(q) or ["in collision"]
 
     REACH_CACHE = 4096  # grasps whose whole check (IK, approach, collisions) is remembered
 

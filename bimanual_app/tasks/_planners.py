@@ -220,10 +220,12 @@ def _retreatable(motion: TaskMotion, arm: str, sols: np.ndarray, T: np.ndarray, 
     A free motion's goal decides the IK branch of the straight moves after it: at a transfer pose, a
     solution with a wrist joint at its limit (the same gripper pose with joints 4 and 6 turned half a turn
     and joint 5 negated) reaches the pose, but no retreat from it stays on its branch."""
+    lines = [line_poses(T, translate_along(T, d, RETREAT_MIN)) for _, d in _retreat_directions(T, up)]
+
     def follows(q):
-        for _, d in _retreat_directions(T, up):
+        for poses in lines:
             try:
-                motion.ik_path({arm: line_poses(T, translate_along(T, d, RETREAT_MIN))}, {arm: q})
+                motion.ik_path({arm: poses}, {arm: q})
                 return True
             except PlanFailure:
                 pass
