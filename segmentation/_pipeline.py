@@ -10,6 +10,7 @@ import numpy as np
 
 from bimanual_app.io_utils import InputError, Problem
 
+from ._cartons import split_carton_neighbours
 from ._graph import RegionGraph, pair_geometry
 from ._orient import orient_patches
 from ._params import SegmentParams
@@ -254,9 +255,10 @@ def _regions(vox, vn, var, edges, mask_vox, table: TablePlane, p: SegmentParams,
     region = dissolve_slivers(region, vox.xyz, SLIVER_WIDTH, p.min_object_voxels)
     region, split = split_by_tops(region, vox.xyz, vn, edges, p)
     region, shed = shed_neighbour_walls(region, vox.xyz, vn, edges, p, _min_top(table, p))
+    region, carved = split_carton_neighbours(region, vox.xyz, vn, edges, p)
     T["graph"] = time.perf_counter() - t4
     stats.update(patches=len(patches), patch_edges=int(len(pairs)), merges=merges, attached=parts, split_by_tops=split,
-                 walls_shed=shed)
+                 walls_shed=shed, carton_neighbours=carved)
     return region
 
 

@@ -1,0 +1,82 @@
+"""A carton is a box under its top (``split_carton_neighbours``): a cylinder left in a carton's region beside
+it becomes a region of its own; the carton's own walls, a strip of noise and a non-carton region stay."""
+
+import numpy as np
+
+from segmentation import SegmentParams
+from segmentation._cartons import split_carton_neighbours
+from segmentation._voxels import knn_edges
+
+STEP = 0.005
+
+
+def _carton(size=(0.30, 0.18, 0.10)):
+    """Voxels (M, 3) and normals of a box's top and walls, centred at the origin, on the table (z = 0)."""
+    lx, ly, h = size
+    xs, ys = (np.arange(-v / 2, v / 2 + 1e-9, STEP) for v in (lx, ly))
+    zs = np.arange(0.0, h + 1e-9, STEP)
+    X, Y = np.meshgrid(xs, ys)
+    top = np.c_[X.ravel(), Y.ravel(), np.full(X.size, h)]
+    walls, nw = [], []
+    for x0, n in ((-lx / 2, (-1, 0, 0)), (lx / 2, (1, 0, 0))):
+        Y2, Z2 = np.meshgrid(ys, zs[:-1])
+        walls.append(np.c_[np.full(Y2.size, x0), Y2.ravel(), Z2.ravel()])
+        nw.append(np.tile(n, (Y2.size, 1)))
+    for y0, n in ((-ly / 2, (0, -1, 0)), (ly / 2, (0, 1, 0))):
+        X2, Z2 = np.meshgrid(xs, zs[:-1])
+        walls.append(np.c_[X2.ravel(), np.full(X2.size, y0), Z2.ravel()])
+        nw.append(np.tile(n, (X2.size, 1)))
+    return np.vstack([top, *walls]), np.vstack([np.tile((0, 0, 1), (len(top), 1)), *nw]).astype(float)
+
+
+def _cylinder(centre, r=0.03, h=0.14):
+    """Voxels and normals of an upright cylinder's side and top."""
+    a = np.arange(0, 2 * np.pi, STEP / r)
+    zs = np.arange(0.0, h, STEP)
+    A, Z = np.meshgrid(a, zs)
+    side = np.c_[centre[0] + r * np.cos(A.ravel()), centre[1] + r * np.sin(A.ravel()), Z.ravel()]
+    ns = np.c_[np.cos(A.ravel()), np.sin(A.ravel()), np.zeros(A.size)]
+    g = np.arange(-r, r + 1e-9, STEP)
+    X, Y = np.meshgrid(g, g)
+    inside = X.ravel() ** 2 + Y.ravel() ** 2 <= r * r
+    top = np.c_[centre[0] + X.ravel()[inside], centre[1] + Y.ravel()[inside], np.full(inside.sum(), h)]
+    return np.vstack([side, top]), np.vstack([ns, np.tile((0, 0, 1), (len(top), 1))]).astype(float)
+
+
+def _split(*parts):
+    xyz = np.vstack([p[0] for p in parts])
+    normals = np.vstack([p[1] for p in parts])
+    edges, _ = knn_edges(xyz, 10, 2.5 * STEP)
+    region = np.zeros(len(xyz), int)  # one region: what the contraction and the part rules left
+    return split_carton_neighbours(region, xyz, normals, edges, SegmentParams()), [len(p[0]) for p in parts]
+
+
+def test_a_cylinder_in_a_cartons_region_beside_it_is_split_off():
+    (out, n_split), (n_carton, n_cyl) = _split(_carton(), _cylinder((0.0, 0.09 + 0.03)))
+    assert n_split == 1
+    carton, cyl = out[:n_carton], out[n_carton:]
+    assert np.all(carton == 0)  # the carton keeps all of its voxels
+    assert np.mean(cyl != 0) > 0.6 and len(set(cyl[cyl != 0])) == 1  # the cylinder, but its side against the carton
+    low = _cylinder((0.0, 0.09 + 0.03))[0][:, 2] <= 0.1 + 0.02
+    assert np.all(cyl[~low] != 0)  # all of it that rises above the carton's top
+
+
+def test_a_carton_alone_and_a_strip_of_noise_beside_it_stay_whole():
+    (out, n_split), _ = _split(_carton())
+    assert n_split == 0 and np.all(out == 0)
+    strip = np.c_[np.linspace(-0.1, 0.1, 40), np.full(40, 0.105), np.full(40, 0.05)]  # 1.5 cm out, a line
+    (out, n_split), _ = _split(_carton(), (strip, np.tile((0.0, 1.0, 0.0), (40, 1))))
+    assert n_split == 0 and np.all(out == 0)
+
+
+def test_a_region_without_a_cartons_top_is_left_alone():
+    # two cylinders: no rectangular top 8 cm wide, whatever sticks out of what
+    (out, n_split), _ = _split(_cylinder((0.0, 0.0), r=0.05), _cylinder((0.0, 0.11)))
+    assert n_split == 0 and np.all(out == 0)
+
+
+def test_a_carton_whose_top_was_seen_in_part_keeps_its_walls():
+    xyz, normals = _carton()
+    seen = (xyz[:, 2] < 0.099) | (xyz[:, 0] < 0.05)  # the top's far end (10 cm of 30) not seen
+    (out, n_split), _ = _split((xyz[seen], normals[seen]))
+    assert n_split == 0 and np.all(out == 0)
