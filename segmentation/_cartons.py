@@ -7,10 +7,19 @@ its top and nothing of it rises above its top, so the region's voxels more than 
 rectangle of its top plateau, or more than ``ABOVE_TOL`` above the plateau, are not the carton. Where they
 form an object-sized piece (voxels within ``PIECE_GAP`` of each other; the segmenter's own size measures, as
 ``split_by_tops`` uses them) whose sides do not face along the carton's axes, the piece becomes a region of
-its own; smaller remains stay (a wall strip, noise). The last test keeps a carton whose top was seen only in
-part whole: the walls under the unseen part of its top lie outside the rectangle of the seen part, but they
-face along its axes (``WALL_SHARE`` of their side voxels within ``WALL_DEG``); a cylinder's sides face every
-way.
+its own; smaller remains stay (a wall strip, noise). Three more tests keep a carton whole:
+
+- the walls under the unseen part of a carton's top lie outside the rectangle of the seen part, but they
+  face along its axes (``WALL_SHARE`` of their side voxels within ``WALL_DEG``); a cylinder's sides face
+  every way;
+- the unseen part of a top seen in fragments continues the plateau: upward-facing voxels at its height
+  (within ``STEP``) next to it (within ``PIECE_GAP``);
+- most of the piece lies outside the rectangle: a sheet above the carton's top, inside its outline, is a
+  second copy of the top (a view registered a few centimetres off), not a neighbour;
+- the piece rises to within ``ABOVE_TOL`` of the carton's top: a lower neighbour whose top is seen is split
+  by that top already (``split_by_tops``), so what this rule is for is a neighbour whose top is level with
+  the carton's or unseen above it; a low piece is a sheet of the table or noise (the segmentation bench's
+  emulator clouds, 8-14 mm of table noise, hold such pieces).
 
 A region is a carton when its largest flat top plateau (``_tops._plateaus``) is at least ``CARTON_WIDTH``
 wide and fills its minimum-area rectangle (OpenCV) to ``FILL``: a disc fills pi/4 of its square, a duck's or
@@ -22,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._params import SegmentParams
-from ._tops import _plateaus
+from ._tops import STEP, UP_COS, _plateaus
 
 __all__ = ["split_carton_neighbours"]
 
@@ -36,9 +45,9 @@ WALL_SHARE = 0.7  # ... and a piece is the carton's own wall when this share of 
 
 
 def _top_rectangle(idx: np.ndarray, xyz: np.ndarray, normals: np.ndarray, edges: np.ndarray):
-    """``(centre (2,), R (2, 2) columns = the rectangle's axes, half sizes (2,), height)`` of a carton region's
-    top plateau (its x-y rectangle, its median height), or None when the region (voxel indices ``idx``) is
-    not a carton."""
+    """``(centre (2,), R (2, 2) columns = the rectangle's axes, half sizes (2,), height, plateau voxels)`` of
+    a carton region's top plateau (its x-y rectangle, its median height), or None when the region (voxel
+    indices ``idx``) is not a carton."""
     import cv2
 
     tops = _plateaus(idx, xyz, normals, edges)
@@ -51,12 +60,12 @@ def _top_rectangle(idx: np.ndarray, xyz: np.ndarray, normals: np.ndarray, edges:
         return None
     a = np.deg2rad(angle)
     R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
-    return np.array([cx, cy]), R, np.array([w, h]) / 2, float(np.median(xyz[top, 2]))
+    return np.array([cx, cy]), R, np.array([w, h]) / 2, float(np.median(xyz[top, 2])), top
 
 
 def _outside(xy: np.ndarray, rect) -> np.ndarray:
     """(M,) distance (m) of points ``xy`` (M, 2) outside a rectangle (0 inside)."""
-    c, R, half, _ = rect
+    c, R, half = rect[:3]
     local = np.abs((xy - c) @ R)
     return np.linalg.norm(np.maximum(local - half, 0.0), axis=1)
 
@@ -82,6 +91,25 @@ def _carton_wall(normals: np.ndarray, R: np.ndarray) -> bool:
     n = n / np.linalg.norm(n, axis=1, keepdims=True)
     along = np.max(np.abs(n @ R), axis=1) >= np.cos(np.deg2rad(WALL_DEG))
     return bool(np.mean(along) >= WALL_SHARE)
+
+
+def _continues_top(piece: np.ndarray, xyz: np.ndarray, normals: np.ndarray, rect) -> bool:
+    """Whether a piece (voxel indices) holds upward-facing voxels at the top plateau's height next to it."""
+    from scipy.spatial import cKDTree
+
+    h, top = rect[3], rect[4]
+    flat = piece[(np.abs(normals[piece, 2]) >= UP_COS) & (np.abs(xyz[piece, 2] - h) < STEP)]
+    if not len(flat):
+        return False
+    d, _ = cKDTree(xyz[top]).query(xyz[flat], distance_upper_bound=PIECE_GAP)
+    return bool(np.isfinite(d).any())
+
+
+def _separate(piece: np.ndarray, xyz: np.ndarray, normals: np.ndarray, rect, params: SegmentParams) -> bool:
+    """Whether a piece (voxel indices) outside a carton's top is an object of its own (module docstring)."""
+    return (_object_sized(xyz[piece, :2], params) and np.mean(_outside(xyz[piece, :2], rect) > 0) >= 0.5
+            and xyz[piece, 2].max() >= rect[3] - ABOVE_TOL and not _carton_wall(normals[piece], rect[1])
+            and not _continues_top(piece, xyz, normals, rect))
 
 
 def _object_sized(xy: np.ndarray, params: SegmentParams) -> bool:
@@ -113,7 +141,7 @@ def split_carton_neighbours(region: np.ndarray, xyz: np.ndarray, normals: np.nda
         if len(far) < params.min_object_voxels:
             continue
         for piece in _pieces(xyz[far], PIECE_GAP):
-            if _object_sized(xyz[far[piece], :2], params) and not _carton_wall(normals[far[piece]], rect[1]):
+            if _separate(far[piece], xyz, normals, rect, params):
                 out[far[piece]] = next_id
                 next_id += 1
                 split += 1
