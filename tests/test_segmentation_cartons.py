@@ -80,3 +80,19 @@ def test_a_carton_whose_top_was_seen_in_part_keeps_its_walls():
     seen = (xyz[:, 2] < 0.099) | (xyz[:, 0] < 0.05)  # the top's far end (10 cm of 30) not seen
     (out, n_split), _ = _split((xyz[seen], normals[seen]))
     assert n_split == 0 and np.all(out == 0)
+
+
+def _sheet(x0, x1, y0, y1, z):
+    """Upward-facing voxels of a flat sheet at height ``z``."""
+    X, Y = np.meshgrid(np.arange(x0, x1, STEP), np.arange(y0, y1, STEP))
+    xyz = np.c_[X.ravel(), Y.ravel(), np.full(X.size, z)]
+    return xyz, np.tile((0.0, 0.0, 1.0), (len(xyz), 1))
+
+
+def test_a_copy_of_the_top_above_it_and_a_low_sheet_beside_it_stay():
+    # a view registered 2.5 cm off: a second copy of part of the top, inside the carton's outline
+    (out, n_split), _ = _split(_carton(), _sheet(-0.12, 0.02, -0.08, 0.08, 0.125))
+    assert n_split == 0 and np.all(out == 0)
+    # a sheet of table 2 cm up beside the carton: not as high as the carton, so not a neighbour it hides
+    (out, n_split), _ = _split(_carton(), _sheet(-0.1, 0.1, 0.105, 0.16, 0.02))
+    assert n_split == 0 and np.all(out == 0)
