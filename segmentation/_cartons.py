@@ -6,7 +6,7 @@ carton's footprint and is attached as a part of it (``_parts``). A box's walls s
 its top and nothing of it rises above its top, so the region's voxels more than ``OUT_TOL`` outside the
 rectangle of its top plateau, or more than ``ABOVE_TOL`` above the plateau, are not the carton. Where they
 form an object-sized piece (voxels within ``PIECE_GAP`` of each other; the segmenter's own size measures, as
-``split_by_tops`` uses them) whose sides do not face along the carton's axes, the piece becomes a region of
+``_tops.object_sized``, as ``split_by_tops`` uses them) whose sides do not face along the carton's axes, the piece becomes a region of
 its own; smaller remains stay (a wall strip, noise). Three more tests keep a carton whole:
 
 - the walls under the unseen part of a carton's top lie outside the rectangle of the seen part, but they
@@ -31,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._params import SegmentParams
-from ._tops import STEP, UP_COS, _plateaus
+from ._tops import STEP, UP_COS, _plateaus, object_sized
 
 __all__ = ["split_carton_neighbours"]
 
@@ -107,18 +107,9 @@ def _continues_top(piece: np.ndarray, xyz: np.ndarray, normals: np.ndarray, rect
 
 def _separate(piece: np.ndarray, xyz: np.ndarray, normals: np.ndarray, rect, params: SegmentParams) -> bool:
     """Whether a piece (voxel indices) outside a carton's top is an object of its own (module docstring)."""
-    return (_object_sized(xyz[piece, :2], params) and np.mean(_outside(xyz[piece, :2], rect) > 0) >= 0.5
+    return (object_sized(xyz[piece, :2], params) and np.mean(_outside(xyz[piece, :2], rect) > 0) >= 0.5
             and xyz[piece, 2].max() >= rect[3] - ABOVE_TOL and not _carton_wall(normals[piece], rect[1])
             and not _continues_top(piece, xyz, normals, rect))
-
-
-def _object_sized(xy: np.ndarray, params: SegmentParams) -> bool:
-    import cv2
-
-    if len(xy) < params.min_object_voxels:
-        return False
-    (_, _), (w, h), _ = cv2.minAreaRect(xy.astype(np.float32))
-    return max(w, h) >= params.min_object_size and min(w, h) >= 0.015
 
 
 def split_carton_neighbours(region: np.ndarray, xyz: np.ndarray, normals: np.ndarray, edges: np.ndarray,

@@ -27,7 +27,7 @@ import numpy as np
 
 from ._params import SegmentParams
 
-__all__ = ["split_by_tops"]
+__all__ = ["split_by_tops", "object_sized"]
 
 UP_COS = 0.9  # an upward-facing voxel: its normal within 26 degrees of the table normal
 STEP = 0.004  # m: neighbouring plateau voxels differ in height by less than this
@@ -137,6 +137,17 @@ def _bump(xy: np.ndarray) -> np.ndarray | None:
     return small
 
 
+def object_sized(xy: np.ndarray, params: SegmentParams) -> bool:
+    """Whether a piece split off a region (its voxels' x-y ``xy`` (M, 2)) is an object by the segmenter's own
+    measures: ``min_object_voxels`` voxels, a footprint ``min_object_size`` long and 1.5 cm wide."""
+    import cv2
+
+    if len(xy) < params.min_object_voxels:
+        return False
+    (_, _), (w, h), _ = cv2.minAreaRect(xy.astype(np.float32))
+    return max(w, h) >= params.min_object_size and min(w, h) >= 0.015
+
+
 def split_by_tops(region: np.ndarray, xyz: np.ndarray, normals: np.ndarray, edges: np.ndarray,
                   params: SegmentParams) -> tuple[np.ndarray, int]:
     """Split regions holding side-by-side objects with flat tops at different heights (module docstring).
@@ -145,7 +156,6 @@ def split_by_tops(region: np.ndarray, xyz: np.ndarray, normals: np.ndarray, edge
     (V, 3) their normals (sign free), ``edges`` (E, 2) voxel neighbour pairs. Returns the new (V,) ids (new
     regions numbered after the existing ones) and the number of regions split off.
     """
-    import cv2
 
     out = region.copy()
     next_id = int(region.max()) + 1 if len(region) else 0
@@ -198,16 +208,7 @@ def split_by_tops(region: np.ndarray, xyz: np.ndarray, normals: np.ndarray, edge
         if cut:
             owner[lost] = np.argmin(d_flat[lost], axis=1)
         parts = [idx[owner == p] for p in range(len(keep))]
-        ok = True
-        for part in parts:
-            if len(part) < params.min_object_voxels:
-                ok = False
-                break
-            (_, _), (w, h), _ = cv2.minAreaRect(xyz[part, :2].astype(np.float32))
-            if max(w, h) < params.min_object_size or min(w, h) < 0.015:
-                ok = False
-                break
-        if not ok:
+        if not all(object_sized(xyz[part, :2], params) for part in parts):
             continue
         for part in parts[1:]:
             out[part] = next_id
