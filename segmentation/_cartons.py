@@ -7,7 +7,7 @@ its top and nothing of it rises above its top, so the region's voxels more than 
 rectangle of its top plateau, or more than ``ABOVE_TOL`` above the plateau, are not the carton. Where they
 form an object-sized piece (voxels within ``PIECE_GAP`` of each other; the segmenter's own size measures, as
 ``_tops.object_sized``, as ``split_by_tops`` uses them) whose sides do not face along the carton's axes, the piece becomes a region of
-its own; smaller remains stay (a wall strip, noise). Three more tests keep a carton whole:
+its own; smaller remains stay (a wall strip, noise). Four more tests keep a carton whole:
 
 - the walls under the unseen part of a carton's top lie outside the rectangle of the seen part, but they
   face along its axes (``WALL_SHARE`` of their side voxels within ``WALL_DEG``); a cylinder's sides face
@@ -28,6 +28,8 @@ a bunny's back is not flat.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from ._params import SegmentParams
@@ -44,10 +46,18 @@ WALL_DEG = 20.0  # a side voxel faces along an axis of the rectangle when its no
 WALL_SHARE = 0.7  # ... and a piece is the carton's own wall when this share of its side voxels does
 
 
-def _top_rectangle(idx: np.ndarray, xyz: np.ndarray, normals: np.ndarray, edges: np.ndarray):
-    """``(centre (2,), R (2, 2) columns = the rectangle's axes, half sizes (2,), height, plateau voxels)`` of
-    a carton region's top plateau (its x-y rectangle, its median height), or None when the region (voxel
-    indices ``idx``) is not a carton."""
+class _Top(NamedTuple):
+    """A carton's top: its plateau's minimum-area rectangle in x-y and its height (table frame)."""
+
+    centre: np.ndarray  # (2,)
+    R: np.ndarray  # (2, 2), columns: the rectangle's axes
+    half: np.ndarray  # (2,) half sizes along them
+    height: float  # the plateau's median height (m)
+    voxels: np.ndarray  # (P,) the plateau's voxel indices
+
+
+def _top_rectangle(idx: np.ndarray, xyz: np.ndarray, normals: np.ndarray, edges: np.ndarray) -> _Top | None:
+    """The top of a carton region (voxel indices ``idx``), or None when the region is not a carton."""
     import cv2
 
     tops = _plateaus(idx, xyz, normals, edges)
@@ -60,24 +70,23 @@ def _top_rectangle(idx: np.ndarray, xyz: np.ndarray, normals: np.ndarray, edges:
         return None
     a = np.deg2rad(angle)
     R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
-    return np.array([cx, cy]), R, np.array([w, h]) / 2, float(np.median(xyz[top, 2])), top
+    return _Top(np.array([cx, cy]), R, np.array([w, h]) / 2, float(np.median(xyz[top, 2])), top)
 
 
-def _outside(xy: np.ndarray, rect) -> np.ndarray:
-    """(M,) distance (m) of points ``xy`` (M, 2) outside a rectangle (0 inside)."""
-    c, R, half = rect[:3]
-    local = np.abs((xy - c) @ R)
-    return np.linalg.norm(np.maximum(local - half, 0.0), axis=1)
+def _outside(xy: np.ndarray, top: _Top) -> np.ndarray:
+    """(M,) distance (m) of points ``xy`` (M, 2) outside the top's rectangle (0 inside)."""
+    local = np.abs((xy - top.centre) @ top.R)
+    return np.linalg.norm(np.maximum(local - top.half, 0.0), axis=1)
 
 
-def _pieces(xy: np.ndarray, gap: float) -> list[np.ndarray]:
-    """Index arrays of the groups of points ``xy`` (M, 3) joined by steps under ``gap`` (scipy)."""
+def _pieces(points: np.ndarray, gap: float) -> list[np.ndarray]:
+    """Index arrays of the groups of ``points`` (M, 3) joined by steps under ``gap`` (scipy)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
-    pairs = cKDTree(xy).query_pairs(gap, output_type="ndarray")
-    n = len(xy)
+    pairs = cKDTree(points).query_pairs(gap, output_type="ndarray")
+    n = len(points)
     _, lab = connected_components(coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n)),
                                   directed=False)
     return [np.flatnonzero(lab == k) for k in np.unique(lab)]
@@ -93,23 +102,22 @@ def _carton_wall(normals: np.ndarray, R: np.ndarray) -> bool:
     return bool(np.mean(along) >= WALL_SHARE)
 
 
-def _continues_top(piece: np.ndarray, xyz: np.ndarray, normals: np.ndarray, rect) -> bool:
+def _continues_top(piece: np.ndarray, xyz: np.ndarray, normals: np.ndarray, top: _Top) -> bool:
     """Whether a piece (voxel indices) holds upward-facing voxels at the top plateau's height next to it."""
     from scipy.spatial import cKDTree
 
-    h, top = rect[3], rect[4]
-    flat = piece[(np.abs(normals[piece, 2]) >= UP_COS) & (np.abs(xyz[piece, 2] - h) < STEP)]
+    flat = piece[(np.abs(normals[piece, 2]) >= UP_COS) & (np.abs(xyz[piece, 2] - top.height) < STEP)]
     if not len(flat):
         return False
-    d, _ = cKDTree(xyz[top]).query(xyz[flat], distance_upper_bound=PIECE_GAP)
+    d, _ = cKDTree(xyz[top.voxels]).query(xyz[flat], distance_upper_bound=PIECE_GAP)
     return bool(np.isfinite(d).any())
 
 
-def _separate(piece: np.ndarray, xyz: np.ndarray, normals: np.ndarray, rect, params: SegmentParams) -> bool:
+def _separate(piece: np.ndarray, xyz: np.ndarray, normals: np.ndarray, top: _Top, params: SegmentParams) -> bool:
     """Whether a piece (voxel indices) outside a carton's top is an object of its own (module docstring)."""
-    return (object_sized(xyz[piece, :2], params) and np.mean(_outside(xyz[piece, :2], rect) > 0) >= 0.5
-            and xyz[piece, 2].max() >= rect[3] - ABOVE_TOL and not _carton_wall(normals[piece], rect[1])
-            and not _continues_top(piece, xyz, normals, rect))
+    return (object_sized(xyz[piece, :2], params) and np.mean(_outside(xyz[piece, :2], top) > 0) >= 0.5
+            and xyz[piece, 2].max() >= top.height - ABOVE_TOL and not _carton_wall(normals[piece], top.R)
+            and not _continues_top(piece, xyz, normals, top))
 
 
 def split_carton_neighbours(region: np.ndarray, xyz: np.ndarray, normals: np.ndarray, edges: np.ndarray,
@@ -125,14 +133,14 @@ def split_carton_neighbours(region: np.ndarray, xyz: np.ndarray, normals: np.nda
     for idx in np.split(order, np.flatnonzero(np.diff(region[order])) + 1):
         if len(idx) < 2 * params.min_object_voxels:
             continue
-        rect = _top_rectangle(idx, xyz, normals, edges)
-        if rect is None:
+        top = _top_rectangle(idx, xyz, normals, edges)
+        if top is None:
             continue
-        far = idx[(_outside(xyz[idx, :2], rect) > OUT_TOL) | (xyz[idx, 2] > rect[3] + ABOVE_TOL)]
+        far = idx[(_outside(xyz[idx, :2], top) > OUT_TOL) | (xyz[idx, 2] > top.height + ABOVE_TOL)]
         if len(far) < params.min_object_voxels:
             continue
         for piece in _pieces(xyz[far], PIECE_GAP):
-            if _separate(far[piece], xyz, normals, rect, params):
+            if _separate(far[piece], xyz, normals, top, params):
                 out[far[piece]] = next_id
                 next_id += 1
                 split += 1
