@@ -345,42 +345,28 @@ def scene_cloud(scene, result: CalibrationResult, conf_threshold: float | None =
     removed with :func:`robot_self_mask` (``robot_radius=0`` keeps them). Returns ``(empty, None, info)``
     when the reconstruction has no point maps.
     """
+    points, colors, info, _ = scene_cloud_and_views(scene, result, conf_threshold, include_dropped, robot_radius,
+                                                    wrist_rig, free_space)
+    return points, colors, info
+
+
+def scene_cloud_and_views(scene, result: CalibrationResult, conf_threshold: float | None = None,
+                          include_dropped: bool = False, robot_radius: float = ROBOT_RADIUS, wrist_rig: bool = True,
+                          free_space: bool = True):
+    """:func:`scene_cloud`'s ``(points, colors, info)`` and the depth views those points come from
+    (:class:`bimanual_app.views.DepthViews`, the pixels the cloud keeps; None without point maps)."""
     from ._cloud import metric_cloud
 
     rec = scene.reconstruction
     if rec is None or rec.pts3d is None:
-        return np.zeros((0, 3)), None, {"points": 0, "note": "the reconstruction has no point maps (pts3d)"}
+        return np.zeros((0, 3)), None, {"points": 0, "note": "the reconstruction has no point maps (pts3d)"}, None
     rows, arms, E = _views_of(scene, result, include_dropped)
-    pts3d = rec.pts3d[rows].copy()
-    T_w_c = rec.T_w_c[rows]
-    anchored = bool((result.info.get("point_maps") or {}).get("accepted"))
-    if anchored:
-        logk = result.diagnostics.get("depth_log_factor", {})
-        factor = np.exp([logk.get(int(j), 0.0) for j in rows])
-        pts3d, T_w_c = _kinematic_anchor(pts3d, T_w_c, result, arms, E, factor)
-    rig_pixels = {}
-    if wrist_rig:
-        for arm in scene.arms:  # each arm's own fingers, found over all its registered views
-            mask = _rig_pixels(scene, result, arm)
-            rig_pixels[arm.name] = int(mask.sum())
-            views = np.flatnonzero(np.asarray(rec.arm)[rows] == arm.index)
-            ys, xs = np.nonzero(mask)
-            pts3d[views[:, None], ys, xs] = np.nan
-    seen_through = 0
-    if free_space and len(rows) >= 3:
-        from ._fusion import free_space_outliers
-
-        drop = free_space_outliers(pts3d, T_w_c)
-        seen_through = int(drop.sum())
-        pts3d[drop] = np.nan
-    points, colors, info = metric_cloud(pts3d, result.T_b1_w, result.scale,
-                                        None if rec.conf is None else rec.conf[rows],
-                                        None if rec.colors is None else rec.colors[rows], conf_threshold)
-    info["views_placed_by"] = "kinematics" if anchored else "reconstruction"
-    if rig_pixels:
-        info["wrist_rig_pixels"] = rig_pixels
-    if free_space:
-        info["seen_through_removed"] = seen_through
+    pts3d, T_w_c, info = _placed_maps(scene, result, rows, arms, E, wrist_rig, free_space)
+    conf = None if rec.conf is None else rec.conf[rows]
+    points, colors, cinfo = metric_cloud(pts3d, result.T_b1_w, result.scale, conf,
+                                         None if rec.colors is None else rec.colors[rows], conf_threshold)
+    info = {**cinfo, **info}
+    views = _depth_views(pts3d, T_w_c, conf, cinfo["conf_threshold"], result, arms)
     if robot_radius > 0 and len(points):
         keep = ~robot_self_mask(points, [np.eye(4), result.T_b1_b2], robot_radius)
         info["robot_points_removed"] = int((~keep).sum())
@@ -388,7 +374,62 @@ def scene_cloud(scene, result: CalibrationResult, conf_threshold: float | None =
         points = points[keep]
         colors = None if colors is None else colors[keep]
         info["points"] = int(len(points))
-    return points, colors, info
+    return points, colors, info, views
+
+
+def _placed_maps(scene, result: CalibrationResult, rows: np.ndarray, arms: np.ndarray, E: np.ndarray,
+                 wrist_rig: bool, free_space: bool) -> tuple[np.ndarray, np.ndarray, dict]:
+    """The point maps (V, H, W, 3) and camera poses (V, 4, 4) of reconstruction ``rows`` as the cloud uses
+    them: placed by the kinematics when the point-map refinement was accepted, each wrist's own rig and the
+    points other views see through set to NaN; with what was done (info)."""
+    rec = scene.reconstruction
+    pts3d = rec.pts3d[rows].copy()
+    T_w_c = rec.T_w_c[rows]
+    anchored = bool((result.info.get("point_maps") or {}).get("accepted"))
+    if anchored:
+        logk = result.diagnostics.get("depth_log_factor", {})
+        factor = np.exp([logk.get(int(j), 0.0) for j in rows])
+        pts3d, T_w_c = _kinematic_anchor(pts3d, T_w_c, result, arms, E, factor)
+    info = {"views_placed_by": "kinematics" if anchored else "reconstruction"}
+    if wrist_rig:
+        rig_pixels = {}
+        for arm in scene.arms:  # each arm's own fingers, found over all its registered views
+            mask = _rig_pixels(scene, result, arm)
+            rig_pixels[arm.name] = int(mask.sum())
+            views = np.flatnonzero(np.asarray(rec.arm)[rows] == arm.index)
+            ys, xs = np.nonzero(mask)
+            pts3d[views[:, None], ys, xs] = np.nan
+        info["wrist_rig_pixels"] = rig_pixels
+    if free_space:
+        seen_through = 0
+        if len(rows) >= 3:
+            from ._fusion import free_space_outliers
+
+            drop = free_space_outliers(pts3d, T_w_c)
+            seen_through = int(drop.sum())
+            pts3d[drop] = np.nan
+        info["seen_through_removed"] = seen_through
+    return pts3d, T_w_c, info
+
+
+def _depth_views(pts3d: np.ndarray, T_w_c: np.ndarray, conf: np.ndarray | None, conf_threshold: float | None,
+                 result: CalibrationResult, arms: np.ndarray):
+    """The metric depth views in b1 of point maps ``pts3d`` (V, H, W, 3) with poses ``T_w_c`` (V, 4, 4) in w:
+    the pixels :func:`metric_cloud` keeps (finite; confidence above ``conf_threshold``), NaN elsewhere."""
+    from bimanual_app.views import DepthViews
+
+    from ._fusion import pointmap_intrinsics, points_in_cameras
+
+    Pc = points_in_cameras(pts3d.astype(np.float64), T_w_c)
+    ok = np.all(np.isfinite(Pc), axis=-1) & (np.nan_to_num(Pc[..., 2], nan=-1.0) > 0)
+    K = np.stack([pointmap_intrinsics(Pc[v], ok[v]) for v in range(len(Pc))])
+    if conf is not None:
+        ok &= (conf > (conf_threshold or 0.0)) & (conf > 0)
+    depth = np.where(ok, Pc[..., 2] * result.scale, np.nan).astype(np.float32)
+    S = np.tile(np.eye(4), (len(T_w_c), 1, 1))
+    S[:, :3, :3] = T_w_c[:, :3, :3]
+    S[:, :3, 3] = result.scale * T_w_c[:, :3, 3]
+    return DepthViews(result.T_b1_w @ S, K, depth, np.asarray(arms, dtype=np.int64))
 
 
 def _rig_pixels(scene, result, arm) -> np.ndarray:
@@ -469,6 +510,8 @@ def write_outputs(out_dir: str | Path, scene, result: CalibrationResult, conf_th
     finished here); None: one is started here. Every file is complete when this returns.
     Returns ``{name: Path}`` of the files written.
     """
+    from bimanual_app.views import VIEWS_FILE, write_views
+
     from ._export import default_frames, write_calibration_json, write_ply, write_ros
     from ._figures import FigureWorker
 
@@ -481,7 +524,7 @@ def write_outputs(out_dir: str | Path, scene, result: CalibrationResult, conf_th
         if pm_figure:  # drawn while the cloud is built
             figures.draw("save_point_map_figure", out / "point_maps.png", *result.diagnostics["point_map_residuals_m"],
                          result.info.get("point_maps", {}), title=f"point-map refinement of '{scene.name}'")
-        pts, cols, cinfo = scene_cloud(scene, result, conf_threshold)
+        pts, cols, cinfo, views = scene_cloud_and_views(scene, result, conf_threshold)
         log(f"metric cloud: {cinfo['points']} points" + (f" (conf > {cinfo['conf_threshold']:.3g})"
                                                           if cinfo.get("conf_threshold") is not None else ""))
         if figure:  # drawn while the files below are written
@@ -501,6 +544,8 @@ def write_outputs(out_dir: str | Path, scene, result: CalibrationResult, conf_th
         if len(pts):
             write_ply(out / "scene_b1.ply", pts, cols)
             files["scene_b1.ply"] = out / "scene_b1.ply"
+        if views is not None:  # what the cameras saw through, for the grasp stage (bimanual_app/views.py)
+            files[VIEWS_FILE] = write_views(out / VIEWS_FILE, views)
         for p in write_ros(out, result, scene.name, frames):
             files[str(p.relative_to(out))] = p
         figures.finish()

@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from bimanual_app.transforms import check_shape
+from bimanual_app.views import filter3, pinhole_pixels
 
 __all__ = ["free_space_outliers", "pointmap_intrinsics"]
 
@@ -69,36 +70,6 @@ def points_in_cameras(P_w: np.ndarray, T_w_c: np.ndarray) -> np.ndarray:
     return np.matmul((P_w - t[:, None, None, :]).reshape(V, -1, 3), R).reshape(P_w.shape)
 
 
-def _filter3(Z: np.ndarray, reduce) -> np.ndarray:
-    """The 3x3 minimum or maximum (``reduce``: ``np.minimum`` / ``np.maximum``) of each (H, W) slice of
-    ``Z`` (V, H, W), edges repeated: ``scipy.ndimage``'s ``minimum_filter`` / ``maximum_filter`` with
-    ``size=3, mode="nearest"``, the same values (a minimum or maximum is exact). Written with numpy because
-    ``scipy.ndimage``'s import costs a command's start-up more than the filtering itself."""
-    H, W = Z.shape[1:]
-    Zp = np.pad(Z, ((0, 0), (1, 1), (1, 1)), mode="edge")
-    out = Zp[:, 1:H + 1, 1:W + 1].copy()
-    for dy in range(3):
-        for dx in range(3):
-            if dy != 1 or dx != 1:
-                reduce(out, Zp[:, dy:dy + H, dx:dx + W], out=out)
-    return out
-
-
-def _project(X: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarray, H: int, W: int
-             ) -> tuple[np.ndarray, np.ndarray]:
-    """``(pixel (N,) int64, depth (N,))`` of points X (N, 3) in a view with pose (R (3, 3), t (3,)) and
-    pinhole ``K`` (4,) = fx, fy, cx, cy: the flat index ``row * W + col`` of the nearest pixel, -1 where
-    the point is behind the camera or outside the (H, W) map."""
-    c = (X - t) @ R
-    z = c[:, 2]
-    front = z > 1e-9
-    zs = np.where(front, z, 1.0)
-    col = np.round(K[0] * c[:, 0] / zs + K[2])
-    row = np.round(K[1] * c[:, 1] / zs + K[3])
-    seen = front & (col >= 0) & (col < W) & (row >= 0) & (row < H)
-    return np.where(seen, row * W + col, -1.0).astype(np.int64), z
-
-
 def free_space_outliers(pts3d_w: np.ndarray, T_w_c: np.ndarray, valid: np.ndarray | None = None,
                         tol_rel: float = TOL_REL, min_votes: int = MIN_VOTES) -> np.ndarray:
     """(V, H, W) bool: the points other views see through (see the module docstring).
@@ -126,11 +97,11 @@ def free_space_outliers(pts3d_w: np.ndarray, T_w_c: np.ndarray, valid: np.ndarra
     # the surface each view sees near a pixel: nearest / farthest depth over its 3x3 neighbours, so that a
     # point on an object's silhouette is compared with the object, not the background beside it
     Z = np.where(ok, Pc[..., 2], np.inf)
-    z_near = _filter3(Z, np.minimum)
+    z_near = filter3(Z, np.minimum)
     # per view u, flat over its pixels: where u sees a surface, and the depth band of "on that surface"
     has = np.isfinite(z_near).reshape(V, -1)
     lo = ((1.0 - tol_rel) * z_near).reshape(V, -1)
-    hi = ((1.0 + tol_rel) * _filter3(np.where(ok, Z, -np.inf), np.maximum)).reshape(V, -1)
+    hi = ((1.0 + tol_rel) * filter3(np.where(ok, Z, -np.inf), np.maximum)).reshape(V, -1)
     out = np.zeros((V, H, W), dtype=bool)
     for v in range(V):
         X = P[v][ok[v]]  # a view's points at a time: arrays that stay in the cache
@@ -139,7 +110,7 @@ def free_space_outliers(pts3d_w: np.ndarray, T_w_c: np.ndarray, valid: np.ndarra
         for u in range(V):
             if u == v or not np.all(np.isfinite(K[u])):
                 continue
-            pix, z = _project(X, R[u], t[u], K[u], H, W)
+            pix, z = pinhole_pixels(X, R[u], t[u], K[u], H, W)
             seen = pix >= 0
             pix[~seen] = 0
             seen &= has[u][pix]

@@ -9,7 +9,8 @@ HELP = "calibrate both wrist cameras, the metric scale and the second base from 
 DESCRIPTION = (
     "Bi-JCR joint calibration from SCENE/reconstruction.npz and the arms' ee_poses.csv: both hand-eye transforms "
     "(T_e1_c1, T_e2_c2), the reconstruction's metric scale, T_b1_w, T_b2_w and the second base T_b1_b2, each with "
-    "a 1-sigma uncertainty. Writes DIR/calibration.json, DIR/scene_b1.ply (metric cloud in b1), "
+    "a 1-sigma uncertainty. Writes DIR/calibration.json, DIR/scene_b1.ply (metric cloud in b1), DIR/views.npz (the "
+    "depth views the cloud came from, placed in b1: what each camera saw through), "
     "DIR/calibration.png and ROS exports under DIR/ros/. Methods: absolute (default: joint refinement on absolute "
     "poses, outlier views dropped, robust loss), paper (the paper's closed form + gradient refinement in "
     "PyTorch, the optional extra: pip install -e .[paper]), "

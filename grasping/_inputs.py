@@ -29,6 +29,8 @@ class SceneCloud:
         colors: (N, 3) uint8 or None.
         table_plane: (4,) plane (a, b, c, d), unit normal pointing up, from the segments file, or None.
         source: names of the files it came from (for messages and grasps.json).
+        views: the capture's depth views in b1 (views.npz beside the cloud) or None: where the cameras saw
+            through (``_unseen.carved_unseen``).
     """
 
     points: np.ndarray
@@ -36,6 +38,7 @@ class SceneCloud:
     colors: np.ndarray | None = None
     table_plane: np.ndarray | None = None
     source: dict = field(default_factory=dict)
+    views: object | None = None  # bimanual_app.views.DepthViews
 
     @property
     def object_ids(self) -> list[int]:

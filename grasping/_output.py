@@ -196,12 +196,18 @@ def _drawn_grippers(plan: GraspPlan) -> list[tuple[np.ndarray, str, str]]:
 
 
 def _draw_objects(ax, plan: GraspPlan, a: int, b: int) -> None:
-    """The unseen space, each object moved to its hand-over's transfer pose, and each object's id and mode."""
+    """The unseen space (table-based, and what no camera saw past), each object moved to its hand-over's transfer
+    pose, and each object's id and mode."""
     unseen = [op.unseen for op in plan.objects if op.unseen is not None and len(op.unseen)]
     if unseen:  # the space no camera saw into, solid for the grasps: light crosses under the points
         U = np.concatenate(unseen)
         ax.scatter(U[:, a], U[:, b], s=4, marker="x", c="0.55", linewidths=0.4, alpha=0.35, zorder=0,
                    label="unseen (solid for grasps)" if a == 0 and b == 1 else None)
+    carved = [op.carved for op in plan.objects if op.carved is not None and len(op.carved)]
+    if carved:  # what no camera saw past near each object (hand-overs keep out of it where they can)
+        C = np.concatenate(carved)
+        ax.scatter(C[:, a], C[:, b], s=5, marker="s", c="steelblue", linewidths=0, alpha=0.3, zorder=0,
+                   label="no camera saw past" if a == 0 and b == 1 else None)
     for op in plan.objects:
         if op.handover is not None and op.geometry is not None:
             Q = op.geometry.points @ op.handover.T_move[:3, :3].T + op.handover.T_move[:3, 3]

@@ -52,6 +52,7 @@ from ._objects import (
     unseen_space,
 )
 from ._push import PushParams, push_contacts
+from ._unseen import carved_unseen
 
 __all__ = ["PlanParams", "ObjectPlan", "GraspPlan", "plan_grasps", "plan_object"]
 
@@ -98,6 +99,13 @@ class PlanParams:
         contacts of large objects, whose box their seen top fixes. Off by default: at 0.05 it cost the
         grasping bench 4 graspable small boxes (touching a carton, their side against it unseen) and the
         task bench one hand-over (docs/grasping.md).
+    carve_radius: when > 0 (m) and the cloud has the capture's depth views, the cells within this distance
+        of an object that no camera saw past (``_unseen.carved_unseen``: a mug's handle on its far side may be
+        there) are solid for a first hand-over search (``_clear_of_unseen``: the giver's picks and the
+        receiver's grasps drawn again with them solid); where it finds none, the search runs as without them.
+        Not solid for every grasp: wrist cameras on two arms leave much of the space around most objects
+        unseen (their far sides, the air they hide), and solid, it took every grasp of most objects of the
+        bench's captures (docs/grasping.md).
     """
 
     sampler: SamplerParams = SamplerParams()
@@ -122,6 +130,7 @@ class PlanParams:
     workspace_radius: float = 1.0
     retry_factor: int = 4
     unseen_radius: float = 0.0
+    carve_radius: float = 0.03
 
     def __post_init__(self):
         bad = [a for a in self.handover_givers if a not in ARM_NAMES]
@@ -143,6 +152,9 @@ class ObjectPlan:
     handover: Handover or None (the best found). handover_alternatives: further hand-overs with another
     giver grasp or transfer pose (``HandoverParams.alternatives``), for the task to fall back on.
     unseen: (K, 3) points filling the space around the object no camera saw into (``PlanParams.unseen_radius``).
+    carved: (K, 3) centres of the cells near the object that no camera of the capture saw past
+        (``PlanParams.carve_radius``; empty without the capture's depth views): hand-overs are searched first
+        with the picks and receivers whose swept gripper keeps out of them.
     shape, shape_fit: ``"box"``, ``"cylinder"`` or ``"free-form"`` and the share of the seen points that fit the
         primitive (``_objects.primitive_fit``): whether the cloud determines the object's shape.
     stats, timings: counts and seconds per stage.
@@ -164,6 +176,7 @@ class ObjectPlan:
     giver_picks: GraspSet | None = None  # the grasps ``handover.givers.index`` points into: grasps (then shallow holds)
     free_grasps: GraspSet | None = None
     unseen: np.ndarray | None = None
+    carved: np.ndarray | None = None
     shape: str = "free-form"
     shape_fit: float = 0.0
     mass_estimate: float = 0.0
@@ -232,7 +245,10 @@ def plan_object(k: int, cloud: SceneCloud, support: Support, gripper: GripperMod
     near = np.linalg.norm(others_pts - geo.centre, axis=1) < 0.5 * float(np.linalg.norm(geo.extent)) + 0.3
     others_pts, others_lab = others_pts[near], cloud.labels[~mask][near]
     others = SceneOctree(others_pts, params.octree_resolution)
-    plan.unseen = np.zeros((0, 3))
+    plan.unseen, plan.carved = np.zeros((0, 3)), np.zeros((0, 3))
+    if params.carve_radius > 0 and cloud.views is not None and not too_wide:
+        obs = geo.observed if geo.observed is not None else np.ones(len(geo.points), bool)
+        plan.carved = carved_unseen(geo.points[obs], others_pts, support, cloud.views, radius=params.carve_radius)
     if params.unseen_radius > 0 and not too_wide:
         obs = geo.observed if geo.observed is not None else np.ones(len(geo.points), bool)
         # only in the directions where the object's own side was not seen (its seen points and normals)
@@ -278,7 +294,7 @@ def _workspace(cloud: SceneCloud, arms: dict[str, Arm] | None, radius: float) ->
     if keep.all():
         return cloud
     return SceneCloud(cloud.points[keep], cloud.labels[keep], None if cloud.colors is None else cloud.colors[keep],
-                      cloud.table_plane, cloud.source)
+                      cloud.table_plane, cloud.source, cloud.views)
 
 
 def _balanced_hints(per_arm: list[np.ndarray]) -> np.ndarray | None:
@@ -434,8 +450,7 @@ def _handover(plan: ObjectPlan, support: Support, gripper: GripperModel, collide
     # torus: 120 kept found no hand-over, all 500 found both, for 0.6 s more)
     # the receiver opens wider than a pick (``receiver_clearance`` past the object on each side, within the
     # stroke): in the air nothing but the giver is near, and the spare opening absorbs the calibration error
-    free_params = replace(params.sampler, full_circle=True, max_keep=params.sampler.n_candidates,
-                          clearance=max(params.sampler.clearance, params.handover_params.receiver_clearance))
+    free_params = _receiver_sampling(params, params.sampler.n_candidates)
     # the space around the object no camera saw into stays solid for the receiver (it moves with the object)
     unseen = plan.unseen if plan.unseen is not None else np.zeros((0, 3))
     receiver_blocked = SceneOctree(unseen, params.octree_resolution)
@@ -455,7 +470,12 @@ def _handover(plan: ObjectPlan, support: Support, gripper: GripperModel, collide
 def _handover_from(plan: ObjectPlan, giver: str, support: Support, gripper: GripperModel, collider: GripperCollider,
                    arms: dict[str, Arm], check: TwoArmCheck | None, params: PlanParams, obstacles_b1: np.ndarray,
                    blocked: SceneOctree, closed) -> list:
-    """The hand-overs from ``giver`` (an arm name): its reachable picks first, then shallow holds."""
+    """The hand-overs from ``giver`` (an arm name): grasps clear of the space no camera saw into first, then its
+    reachable picks, then shallow holds."""
+    found = _clear_of_unseen(plan, giver, support, gripper, collider, arms, check, params, obstacles_b1, blocked,
+                             closed)
+    if found:
+        return found
     # the giver holds the object where it leaves the receiver room, not where a single-arm pick is best
     plan.giver_picks = plan.grasps
     found = _search_handovers(plan, support, collider, arms, check, params, obstacles_b1, closed, giver=giver)
@@ -474,6 +494,42 @@ def _handover_from(plan: ObjectPlan, giver: str, support: Support, gripper: Grip
             plan.stats["handover"]["shallow_picks"] = len(shallow)
             _after_the_picks(plan, shallow, found)
     return found
+
+
+def _clear_of_unseen(plan: ObjectPlan, giver: str, support: Support, gripper: GripperModel,
+                     collider: GripperCollider, arms: dict[str, Arm], check: TwoArmCheck | None, params: PlanParams,
+                     obstacles_b1: np.ndarray, blocked: SceneOctree, closed) -> list:
+    """Hand-overs whose giver's picks and receiver's grasps are drawn with ``plan.carved`` solid (the space near
+    the object no camera saw past: more of the object may be there), searched as the shallow holds are; []
+    when the object has no such cells or none is found (the plan's draws are then left as they were)."""
+    if plan.carved is None or not len(plan.carved):
+        return []
+    first_free = plan.free_grasps
+    solid = np.concatenate([blocked.points, plan.carved])
+    # denser draws (as a redraw's picks): the grasps that keep out are the few that close across the seen side
+    n = params.sampler.n_candidates * params.retry_factor
+    plan.free_grasps, _ = sample_grasps(closed, support, gripper, collider,
+                                        SceneOctree(plan.carved, params.octree_resolution), _receiver_sampling(params, n))
+    picks, _ = sample_grasps(plan.geometry, support, gripper, collider, SceneOctree(solid, params.octree_resolution),
+                             replace(params.sampler, n_candidates=n), approach_hints=_giver_hints(plan, arms, giver))
+    found = []
+    if len(picks) and len(plan.free_grasps):
+        plan.giver_picks = picks
+        found = _search_handovers(plan, support, collider, arms, check, params, obstacles_b1, closed, reached=False,
+                                  giver=giver)
+    plan.stats["unseen"] = {"cells": int(len(plan.carved)), "handover_clear_of_them": bool(found)}
+    if found:
+        _after_the_picks(plan, picks, found)
+    else:
+        plan.free_grasps = first_free
+    return found
+
+
+def _receiver_sampling(params: PlanParams, n: int) -> SamplerParams:
+    """The sampler's parameters for the receiver's grasps in free space: ``n`` candidates, every one kept that
+    passes, from all round, opening ``receiver_clearance`` past the object (within the stroke)."""
+    return replace(params.sampler, full_circle=True, n_candidates=n, max_keep=n,
+                   clearance=max(params.sampler.clearance, params.handover_params.receiver_clearance))
 
 
 def _giver_hints(plan: ObjectPlan, arms: dict[str, Arm], giver: str) -> np.ndarray | None:

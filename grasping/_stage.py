@@ -46,6 +46,7 @@ def grasp_stage(scene: str | Path, segments: str | Path, out: str | Path, calibr
     Raises InputError for bad input, or listing why when no object has a usable grasp.
     """
     from bimanual_app.robots import load_robot
+    from bimanual_app.views import VIEWS_FILE, load_views
 
     from ._antipodal import SamplerParams
     from ._arms import make_arms
@@ -64,6 +65,9 @@ def grasp_stage(scene: str | Path, segments: str | Path, out: str | Path, calibr
     labels, seg_extra = load_segments(seg_path)
     cloud = scene_cloud(points, labels, colors, seg_extra.get("table_plane"),
                         {"cloud": str(cloud_path), "segments": str(seg_path)}, str(cloud_path), str(seg_path))
+    views_path = cloud_path.parent / VIEWS_FILE
+    if views_path.is_file():  # what the cameras saw through (written by `bijcr calibrate` beside the cloud)
+        cloud.views = load_views(views_path)
     T_b1_b2, sigma = None, None
     if cal_path is not None:
         cal = load_calibration(cal_path)
@@ -86,6 +90,7 @@ def grasp_stage(scene: str | Path, segments: str | Path, out: str | Path, calibr
     if not any(any(len(a) for a in op.reach.values()) or op.joint for op in plan.objects):
         raise InputError(_no_grasp_problems(plan, seg_path))
     inputs = {"cloud": str(cloud_path), "segments": str(seg_path),
+              "views": str(views_path) if cloud.views is not None else None,
               "calibration": None if cal_path is None else str(cal_path), "robot": robot}
     out.mkdir(parents=True, exist_ok=True)
     write_grasps_json(out / "grasps.json", plan, inputs)

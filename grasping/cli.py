@@ -1,7 +1,8 @@
 """``bijcr grasp SCENE_DIR_OR_CLOUD --segments DIR/segments.npz --out DIR``: grasps for every segmented object.
 
 Reads the metric cloud in b1 (``scene_b1.ply``, or the folder holding it), its segments and, when found,
-``calibration.json`` (for ``T_b1_b2``: the secondary arm, joint grasps and hand-overs). Writes
+``calibration.json`` (for ``T_b1_b2``: the secondary arm, joint grasps and hand-overs) and ``views.npz`` (where the
+cameras saw through: a hand-over keeps its fingers out of the space near the object no camera saw, where it can). Writes
 ``DIR/grasps.json`` (per object: ranked single-arm grasps with ``T_b1_g``, ``T_b2_g``, width, score, the arms
 that reach them with joint solutions; two-arm pairs; a hand-over) and ``DIR/grasps.png``.
 """

@@ -64,6 +64,11 @@ def test_cli_end_to_end(tiny_scene, tmp_path, capsys):
     d, idx = cKDTree(expected).query(pts)
     assert d.max() < 1e-4
     assert np.allclose(cols * 255, exp_cols[idx], atol=0.5)
+    # the depth views the cloud came from (checked on a rendered scene in tests/test_calibration_views.py)
+    from bimanual_app.views import load_views
+
+    views = load_views(out / "views.npz")
+    assert len(views) == 10 and views.depth.shape[1:] == cap.conf.shape[1:]
     # picture
     from PIL import Image
 

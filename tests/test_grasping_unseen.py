@@ -90,3 +90,73 @@ def test_only_the_directions_whose_side_was_not_seen_are_filled():
     obj2 = P2[L2 == 0]
     U = unseen_space(obj2, P2[L2 < 0], P2[L2 > 0], estimate_support(P2, L2), normals=_cylinder_normals(obj2))
     assert len(U) and np.all(U[:, 1] > CENTRE[1] - 0.005)
+
+
+def _cylinder_views(azimuths_deg):
+    from _views_fixtures import render, ring_of_cameras
+
+    return render(ring_of_cameras((CENTRE[0], CENTRE[1], 0.04), azimuths_deg),
+                  [(CENTRE, DIAMETER / 2, 0.08)], table_half=0.25)
+
+
+def test_carving_finds_the_far_half_no_camera_saw_and_nothing_around_a_seen_object():
+    """Cameras on the -y side only: the cells no camera saw past lie beside the cylinder's far (+y) half,
+    within the radius, above the table; with cameras all round only its inside, which no camera sees either."""
+    from grasping._unseen import carved_unseen
+
+    P, L = _half_seen_cylinder()
+    sup = estimate_support(P, L)
+    U = carved_unseen(P[L == 0], P[L != 0], sup, _cylinder_views([-150, -120, -90, -60, -30]))
+    assert len(U) > 50
+    r = np.linalg.norm(U[:, :2] - np.asarray(CENTRE), axis=1)
+    assert np.all(r < DIAMETER / 2 + 0.03 + 0.005) and np.all(sup.elevation(U) >= 0.01)
+    # outside the cylinder on the seen side, nothing but a cell's width at its silhouette (the cylinder's
+    # inside is unseen too, and harmless: no finger goes there)
+    outside_seen = (r > DIAMETER / 2 + 0.012) & (U[:, 1] < CENTRE[1] - 0.01)
+    assert not outside_seen.any(), U[outside_seen]
+    # the unseen half itself (beyond the seen points' skin) is in it: its centre line, 2 cm behind the axis
+    from scipy.spatial import cKDTree
+
+    behind = np.array([[CENTRE[0], CENTRE[1] + 0.02, z] for z in (0.02, 0.04, 0.06)])
+    assert np.all(cKDTree(U).query(behind)[0] < 0.005)
+    P2, L2 = make_cloud([Obj("cylinder", CENTRE, (DIAMETER, DIAMETER, 0.08), 0.0)], table_size=(0.5, 0.5))
+    all_round = _cylinder_views(list(range(-180, 180, 45)))
+    U2 = carved_unseen(P2[L2 == 0], P2[L2 != 0], estimate_support(P2, L2), all_round)
+    assert np.all(np.linalg.norm(U2[:, :2] - np.asarray(CENTRE), axis=1) < DIAMETER / 2)  # its inside only
+
+
+def test_a_handover_keeps_its_fingers_out_of_what_no_camera_saw():
+    """A box seen only by cameras on its -y side: the air behind it (+y) may hold more of it. With the capture's
+    depth views on the cloud, the hand-over's pick and receiver are drawn with those cells solid
+    (``_clear_of_unseen``): neither swept gripper meets them, though some of the plain picks do."""
+    from _grasp_fixtures import facing_T_b1_b2
+    from _views_fixtures import render, ring_of_cameras
+    from test_handover_search import _Cone
+
+    from grasping import Arm
+    from grasping._collision import GripperCollider, SceneOctree
+
+    T12 = facing_T_b1_b2(0.6)
+    box = ((0.3, 0.2), (0.05, 0.05, 0.08), 0.3)
+    P, L = make_cloud([Obj("box", *box)], table_size=(0.8, 0.8))
+    arms = {"primary": Arm("primary", np.eye(4), _Cone(10.0, (0.0, 5.0))),
+            "secondary": Arm("secondary", T12, _Cone(8.0, (35.0, 45.0)))}
+    cloud = scene_cloud(P, L)
+    cloud.views = render(ring_of_cameras((0.3, 0.2, 0.04), [-150, -120, -90, -60, -30]), [], table_half=0.4,
+                         boxes=[box])
+    plan = plan_grasps(cloud, arms=arms, T_b1_b2=T12, params=PlanParams(retry_factor=1))
+    op = plan.objects[0]
+    c, s_ = np.cos(box[2]), np.sin(box[2])
+    local = (op.carved[:, :2] - box[0]) @ np.array([[c, -s_], [s_, c]])
+    outside = np.any(np.abs(local) > 0.025, axis=1)  # (inside: the box's own unseen core)
+    assert outside.sum() > 50 and np.all(op.carved[outside, 1] > 0.2)  # behind the box only
+    h = op.handover
+    assert h is not None and op.stats.get("unseen", {}).get("handover_clear_of_them"), (op.notes, op.stats)
+    cells = SceneOctree(op.carved, 0.005)
+    picking = GripperCollider(plan.gripper, PlanParams().sampler.approach)
+    receiving = GripperCollider(plan.gripper, PlanParams().handover_params.receiver_pregrasp)
+    pick = op.giver_picks.take([h.givers.index[h.giver_index]])
+    assert not picking.collides(cells, pick.T_b1_g, pick.width)[0]
+    T_rest = np.linalg.inv(h.T_move) @ h.receiver["T_b1_g"]  # the receiver where the object lay
+    assert not receiving.collides(cells, T_rest[None], np.array([h.receiver["width"]]))[0]
+    assert picking.collides(cells, op.grasps.T_b1_g, op.grasps.width).any()  # not a constraint for nothing

@@ -1,0 +1,128 @@
+"""The capture's depth views in b1 (``views.npz`` beside calibration.json): where each wrist camera was and how
+far it saw along each pixel, so that later stages can tell the space a camera saw through (free) from the
+space no camera saw into (unknown).
+
+``bijcr calibrate`` writes it from the point maps the metric cloud is made of (the same views, placed the same
+way, the same pixels kept). Keys (docs/scene-format.md, "Project extensions"):
+
+| key | shape, dtype | meaning |
+| --- | --- | --- |
+| ``T_b1_c`` | (V, 4, 4) float64 | each view's camera pose in b1 (metres) |
+| ``K`` | (V, 4) float64 | its pinhole ``fx, fy, cx, cy`` in depth-map pixels (NaN: not a pinhole map) |
+| ``depth`` | (V, H, W) float32 | z-depth (m) of the surface seen at each pixel; NaN where nothing was kept |
+| ``arm`` | (V,) int64 | 1 primary, 2 secondary |
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bimanual_app.io_utils import InputError, Problem
+from bimanual_app.transforms import check_shape
+
+__all__ = ["DepthViews", "seen_free", "write_views", "load_views", "VIEWS_FILE", "filter3", "pinhole_pixels"]
+
+VIEWS_FILE = "views.npz"
+
+
+@dataclass(frozen=True)
+class DepthViews:
+    """V depth views in b1: ``T_b1_c`` (V, 4, 4), ``K`` (V, 4), ``depth`` (V, H, W) metres (NaN: no surface
+    kept), ``arm`` (V,)."""
+
+    T_b1_c: np.ndarray
+    K: np.ndarray
+    depth: np.ndarray
+    arm: np.ndarray
+
+    def __post_init__(self):
+        V = len(self.T_b1_c)
+        check_shape("T_b1_c", self.T_b1_c, (V, 4, 4))
+        check_shape("K", self.K, (V, 4))
+        check_shape("depth", self.depth, (V, None, None))
+        check_shape("arm", self.arm, (V,))
+
+    def __len__(self) -> int:
+        return len(self.T_b1_c)
+
+
+def seen_free(points_b1: np.ndarray, views: DepthViews, tol: float = 0.01) -> np.ndarray:
+    """(K,) bool: some view saw past each point of ``points_b1`` (K, 3): it projects into that view's map, in
+    front of the camera, and every surface the view kept within one pixel of it lies more than ``tol`` m
+    farther along the view's axis. A pixel without a kept surface says nothing (background, a robot, a
+    dropped point); neither does a point behind a surface (occluded) or within ``tol`` of it."""
+    P = check_shape("points_b1", np.asarray(points_b1, dtype=np.float64), (None, 3))
+    free = np.zeros(len(P), dtype=bool)
+    V, H, W = views.depth.shape
+    # the nearest kept surface around each pixel, -inf where a neighbour kept none: a point next to an
+    # object's silhouette is compared with the object, and a pixel beside a hole proves nothing
+    near = filter3(views.depth.astype(np.float64), np.minimum)  # NaN (no surface) propagates
+    near = np.where(np.isnan(near), -np.inf, near).reshape(V, -1)
+    for v in range(V):
+        if not np.all(np.isfinite(views.K[v])):
+            continue
+        T = views.T_b1_c[v]
+        pix, z = pinhole_pixels(P, np.ascontiguousarray(T[:3, :3]), T[:3, 3], views.K[v], H, W)
+        seen = pix >= 0
+        free[seen] |= near[v][pix[seen]] > z[seen] + tol
+    return free
+
+
+def filter3(Z: np.ndarray, reduce) -> np.ndarray:
+    """The 3x3 minimum or maximum (``reduce``: ``np.minimum`` / ``np.maximum``) of each (H, W) slice of
+    ``Z`` (V, H, W), edges repeated: ``scipy.ndimage``'s ``minimum_filter`` / ``maximum_filter`` with
+    ``size=3, mode="nearest"``, the same values (a minimum or maximum is exact). Written with numpy because
+    ``scipy.ndimage``'s import costs a command's start-up more than the filtering itself."""
+    H, W = Z.shape[1:]
+    Zp = np.pad(Z, ((0, 0), (1, 1), (1, 1)), mode="edge")
+    out = Zp[:, 1:H + 1, 1:W + 1].copy()
+    for dy in range(3):
+        for dx in range(3):
+            if dy != 1 or dx != 1:
+                reduce(out, Zp[:, dy:dy + H, dx:dx + W], out=out)
+    return out
+
+
+def pinhole_pixels(X: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarray, H: int, W: int
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """``(pixel (N,) int64, depth (N,))`` of points X (N, 3) in a view with pose (R (3, 3), t (3,)) and
+    pinhole ``K`` (4,) = fx, fy, cx, cy: the flat index ``row * W + col`` of the nearest pixel, -1 where
+    the point is behind the camera or outside the (H, W) map."""
+    c = (X - t) @ R
+    z = c[:, 2]
+    front = z > 1e-9
+    zs = np.where(front, z, 1.0)
+    col = np.round(K[0] * c[:, 0] / zs + K[2])
+    row = np.round(K[1] * c[:, 1] / zs + K[3])
+    seen = front & (col >= 0) & (col < W) & (row >= 0) & (row < H)
+    return np.where(seen, row * W + col, -1.0).astype(np.int64), z
+
+
+def write_views(path: str | Path, views: DepthViews) -> Path:
+    """Write ``views`` to ``path`` (.npz), complete or not at all (a temporary name, then renamed)."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez_compressed(tmp, T_b1_c=views.T_b1_c, K=views.K, depth=views.depth.astype(np.float32), arm=views.arm)
+    tmp.replace(path)
+    return path
+
+
+def load_views(path: str | Path) -> DepthViews:
+    """Read a views.npz (raises InputError naming the file and the field)."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+    except Exception as e:  # missing file, zip / format errors of several kinds
+        raise InputError(Problem(str(path), "", f"cannot read as .npz: {e}", "re-run `bijcr calibrate`")) from None
+    missing = [k for k in ("T_b1_c", "K", "depth", "arm") if k not in data]
+    if missing:
+        raise InputError(Problem(str(path), missing[0], "missing", "re-run `bijcr calibrate` (it writes views.npz)"))
+    try:
+        return DepthViews(data["T_b1_c"].astype(np.float64), data["K"].astype(np.float64),
+                          data["depth"].astype(np.float32), data["arm"].astype(np.int64))
+    except ValueError as e:
+        raise InputError(Problem(str(path), "depth", str(e), "re-run `bijcr calibrate`")) from None
