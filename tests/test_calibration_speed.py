@@ -8,8 +8,8 @@ import warnings
 import numpy as np
 import pytest
 
+from bimanual_app.views import filter3
 from calibration._figures import FigureWorker
-from calibration._fusion import _filter3
 from calibration._selfmask import _nanmedian0
 
 
@@ -23,7 +23,7 @@ def test_filter3_is_scipy_ndimage_min_max_filter():
     Z[2, 8, 12] = np.inf
     for ours, theirs, fn in ((np.minimum, minimum_filter, "min"), (np.maximum, maximum_filter, "max")):
         want = np.stack([theirs(z, size=3, mode="nearest") for z in Z])
-        assert np.array_equal(_filter3(Z, ours), want), fn
+        assert np.array_equal(filter3(Z, ours), want), fn
 
 
 @pytest.mark.parametrize("views", [3, 4, 8])
