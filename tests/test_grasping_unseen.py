@@ -160,3 +160,26 @@ def test_a_handover_keeps_its_fingers_out_of_what_no_camera_saw():
     T_rest = np.linalg.inv(h.T_move) @ h.receiver["T_b1_g"]  # the receiver where the object lay
     assert not receiving.collides(cells, T_rest[None], np.array([h.receiver["width"]]))[0]
     assert picking.collides(cells, op.grasps.T_b1_g, op.grasps.width).any()  # not a constraint for nothing
+
+
+def test_a_handover_is_still_found_where_no_grasp_keeps_out_of_the_unseen_cells():
+    """Cameras that saw nothing past the box (every pixel a hole): every cell near it is unseen, no grasp keeps
+    out, and the hand-over comes from the search that ignores them, as without views."""
+    from _grasp_fixtures import facing_T_b1_b2
+    from _views_fixtures import render, ring_of_cameras
+    from test_handover_search import _Cone
+
+    from bimanual_app.views import DepthViews
+    from grasping import Arm
+
+    T12 = facing_T_b1_b2(0.6)
+    box = ((0.3, 0.2), (0.05, 0.05, 0.08), 0.3)
+    P, L = make_cloud([Obj("box", *box)], table_size=(0.8, 0.8))
+    arms = {"primary": Arm("primary", np.eye(4), _Cone(10.0, (0.0, 5.0))),
+            "secondary": Arm("secondary", T12, _Cone(8.0, (35.0, 45.0)))}
+    seen = render(ring_of_cameras((0.3, 0.2, 0.04), [-90]), [], table_half=0.4, boxes=[box])
+    cloud = scene_cloud(P, L)
+    cloud.views = DepthViews(seen.T_b1_c, seen.K, np.full_like(seen.depth, np.nan), seen.arm)
+    op = plan_grasps(cloud, arms=arms, T_b1_b2=T12, params=PlanParams(retry_factor=1)).objects[0]
+    assert len(op.carved) > 100 and op.stats["unseen"]["handover_clear_of_them"] is False
+    assert op.handover is not None, (op.notes, op.stats.get("handover"))
