@@ -1,8 +1,8 @@
 """Ground-truth stage outputs for the task bench's reference rows (synthetic scenes only).
 
-- ``gt`` (ground-truth transforms): calibration.json from ground_truth.yaml and the true metric cloud
-  (``bimanual_app.synth.ground_truth_cloud``) as scene_b1.ply; the segmenter and the grasp stage then run
-  on it as in the pipeline.
+- ``gt`` (ground-truth transforms): calibration.json from ground_truth.yaml, the true metric cloud
+  (``bimanual_app.synth.ground_truth_cloud``) as scene_b1.ply and the true depth views it comes from as
+  views.npz; the segmenter and the grasp stage then run on it as in the pipeline.
 - ``oracle`` (ground-truth transforms and objects): the same, and segments.npz labelled with the true
   objects (the label each rendered pixel's mask gives its point) instead of the segmenter's: what the
   planners can do with perfect perception of what the cameras saw.
@@ -37,6 +37,8 @@ def write_gt_calibration(scene_path: Path, cal_dir: Path, cloud=None) -> float:
 
     from bimanual_app.io_utils import atomic_path, write_json
     from bimanual_app.scene import load_scene
+    from bimanual_app.scene.truth import ground_truth_views
+    from bimanual_app.views import VIEWS_FILE, write_views
 
     if cloud is None and (cal_dir / "calibration.json").exists() and (cal_dir / "scene_b1.ply").exists():
         return 0.0
@@ -50,6 +52,8 @@ def write_gt_calibration(scene_path: Path, cal_dir: Path, cloud=None) -> float:
     cal_dir.mkdir(parents=True, exist_ok=True)
     with atomic_path(cal_dir / "scene_b1.ply") as tmp:
         o3d.io.write_point_cloud(str(tmp), pc)
+    # the true depth views, as `bijcr calibrate` writes the estimated ones (what the cameras saw through)
+    write_views(cal_dir / VIEWS_FILE, ground_truth_views(scene_path))
     write_json(cal_dir / "calibration.json", {
         "format": 1, "scene": scene.name, "scale": gt.scale, "T_e1_c1": gt.T_e1_c1, "T_e2_c2": gt.T_e2_c2,
         "T_b1_w": T_b1_w, "T_b2_w": np.linalg.inv(gt.T_b1_b2) @ T_b1_w, "T_b1_b2": gt.T_b1_b2,

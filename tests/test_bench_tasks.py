@@ -141,6 +141,9 @@ def test_write_oracle_inputs_on_a_synthetic_scene(synth_none, tmp_path):
     gt = load_scene(synth_none).ground_truth
     assert cal["scene"] == load_scene(synth_none).name
     assert np.allclose(cal["T_b1_b2"], gt.T_b1_b2)
+    from bimanual_app.views import load_views
+
+    assert len(load_views(work / "calibration" / "views.npz")) == 6  # the true depth views, as calibrate writes
     true_pts, _, true_ids = truth_cloud(synth_none)
     assert labels.shape == (len(pts),) and np.allclose(pts, true_pts, atol=1e-6)  # same points, same order
     truth = meta["stats"]["truth_ids"]

@@ -82,3 +82,34 @@ def ground_truth_cloud(scene_path: str | Path, stride: int = 1, max_depth: float
         first = np.sort(first)
         P, C, L = P[first], C[first], L[first]
     return P, C, L
+
+
+def ground_truth_views(scene_path: str | Path):
+    """The true depth views of a rendered synthetic scene (:class:`bimanual_app.views.DepthViews`): each image's
+    true camera pose in b1, the camera's intrinsics at the stored depth maps' stride, and their depth (NaN
+    where the ray meets a robot, a camera or nothing), in the order of :func:`ground_truth_cloud`'s views."""
+    from bimanual_app.views import DepthViews
+
+    from .load import load_scene
+
+    scene = load_scene(scene_path)
+    gt = scene.ground_truth
+    depth_info = ((gt.extras.get("synthetic") if gt is not None else None) or {}).get("depth")
+    if not depth_info or scene.camera is None:
+        raise InputError(Problem(str(scene.path / "ground_truth.yaml"), "synthetic.depth",
+                                 "no ground-truth depth: not a rendered synthetic scene",
+                                 "generate it with bijcr synth (without --no-render)"))
+    s, units = int(depth_info["stride"]), float(depth_info["units_m"])
+    folder = str(depth_info.get("folder", "depth"))
+    K = scene.camera.K
+    # a depth pixel (i, j) is image pixel (s j, s i): col = (fx x / z + cx) / s
+    K_map = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]]) / s
+    T_b1_b, T_e_c = [np.eye(4), gt.T_b1_b2], [gt.T_e1_c1, gt.T_e2_c2]
+    poses, depths, arms = [], [], []
+    for a, arm in enumerate(scene.arms):
+        for i, key in enumerate(arm.images):
+            z = _read(scene.path / arm.name / folder / f"{Path(key).stem}.png").astype(np.float64) * units
+            depths.append(np.where(z > 0, z, np.nan).astype(np.float32))
+            poses.append(T_b1_b[a] @ arm.T_b_e[i] @ T_e_c[a])
+            arms.append(a + 1)
+    return DepthViews(np.array(poses), np.tile(K_map, (len(poses), 1)), np.array(depths), np.array(arms, dtype=np.int64))
