@@ -87,7 +87,7 @@ def filter3(Z: np.ndarray, reduce) -> np.ndarray:
 
 
 def pinhole_pixels(X: np.ndarray, R: np.ndarray, t: np.ndarray, K: np.ndarray, H: int, W: int
-             ) -> tuple[np.ndarray, np.ndarray]:
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """``(pixel (N,) int64, depth (N,))`` of points X (N, 3) in a view with pose (R (3, 3), t (3,)) and
     pinhole ``K`` (4,) = fx, fy, cx, cy: the flat index ``row * W + col`` of the nearest pixel, -1 where
     the point is behind the camera or outside the (H, W) map."""

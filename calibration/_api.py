@@ -418,13 +418,13 @@ def _depth_views(pts3d: np.ndarray, T_w_c: np.ndarray, conf: np.ndarray | None, 
     the pixels :func:`metric_cloud` keeps (finite; confidence above ``conf_threshold``), NaN elsewhere."""
     from bimanual_app.views import DepthViews
 
+    from ._cloud import kept_pixels
     from ._fusion import pointmap_intrinsics, points_in_cameras
 
     Pc = points_in_cameras(pts3d.astype(np.float64), T_w_c)
     ok = np.all(np.isfinite(Pc), axis=-1) & (np.nan_to_num(Pc[..., 2], nan=-1.0) > 0)
     K = np.stack([pointmap_intrinsics(Pc[v], ok[v]) for v in range(len(Pc))])
-    if conf is not None:
-        ok &= (conf > (conf_threshold or 0.0)) & (conf > 0)
+    ok &= kept_pixels(pts3d, conf, conf_threshold)[0]
     depth = np.where(ok, Pc[..., 2] * result.scale, np.nan).astype(np.float32)
     S = np.tile(np.eye(4), (len(T_w_c), 1, 1))
     S[:, :3, :3] = T_w_c[:, :3, :3]

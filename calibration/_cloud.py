@@ -20,6 +20,19 @@ def auto_conf_threshold(conf: np.ndarray) -> float:
     return float(AUTO_CONF_FRACTION * np.median(pos)) if pos.size else 0.0
 
 
+def kept_pixels(pts3d: np.ndarray, conf: np.ndarray | None = None, conf_threshold: float | None = None
+                ) -> tuple[np.ndarray, float | None]:
+    """``(keep (M, H, W) bool, threshold used or None)``: the point-map pixels the metric cloud keeps, finite and
+    (with ``conf`` (M, H, W)) of confidence above ``conf_threshold`` (None: :func:`auto_conf_threshold`) and 0."""
+    keep = np.all(np.isfinite(pts3d), axis=-1)
+    thr = None
+    if conf is not None:
+        conf = check_shape("conf", conf, pts3d.shape[:3])
+        thr = auto_conf_threshold(conf) if conf_threshold is None else float(conf_threshold)
+        keep &= (conf > thr) & (conf > 0)
+    return keep, thr
+
+
 def metric_cloud(pts3d: np.ndarray, T_b1_w: np.ndarray, scale: float, conf: np.ndarray | None = None,
                  colors: np.ndarray | None = None, conf_threshold: float | None = None
                  ) -> tuple[np.ndarray, np.ndarray | None, dict]:
@@ -37,12 +50,7 @@ def metric_cloud(pts3d: np.ndarray, T_b1_w: np.ndarray, scale: float, conf: np.n
         ``(points (K, 3) float64, colors (K, 3) uint8 or None, info)``.
     """
     pts3d = check_shape("pts3d", pts3d, (None, None, None, 3))
-    keep = np.all(np.isfinite(pts3d), axis=-1)
-    thr = None
-    if conf is not None:
-        conf = check_shape("conf", conf, pts3d.shape[:3])
-        thr = auto_conf_threshold(conf) if conf_threshold is None else float(conf_threshold)
-        keep &= (conf > thr) & (conf > 0)
+    keep, thr = kept_pixels(pts3d, conf, conf_threshold)
     p = pts3d[keep].astype(np.float64) * scale
     p = p @ np.ascontiguousarray(T_b1_w[:3, :3].T) + T_b1_w[:3, 3]  # contiguous: BLAS, not numpy's slow loop
     c = None

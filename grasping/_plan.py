@@ -246,11 +246,10 @@ def plan_object(k: int, cloud: SceneCloud, support: Support, gripper: GripperMod
     others_pts, others_lab = others_pts[near], cloud.labels[~mask][near]
     others = SceneOctree(others_pts, params.octree_resolution)
     plan.unseen, plan.carved = np.zeros((0, 3)), np.zeros((0, 3))
+    obs = geo.observed if geo.observed is not None else np.ones(len(geo.points), bool)  # the seen points
     if params.carve_radius > 0 and cloud.views is not None and not too_wide:
-        obs = geo.observed if geo.observed is not None else np.ones(len(geo.points), bool)
         plan.carved = carved_unseen(geo.points[obs], others_pts, support, cloud.views, radius=params.carve_radius)
     if params.unseen_radius > 0 and not too_wide:
-        obs = geo.observed if geo.observed is not None else np.ones(len(geo.points), bool)
         # only in the directions where the object's own side was not seen (its seen points and normals)
         plan.unseen = unseen_space(geo.points[obs], others_pts[others_lab < 0], others_pts[others_lab >= 0],
                                    support, params.unseen_radius, normals=geo.normals[obs])

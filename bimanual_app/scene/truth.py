@@ -23,6 +23,18 @@ def _read(path: Path) -> np.ndarray:
     return np.asarray(Image.open(path))
 
 
+def _rendered_depth(scene) -> tuple[int, float, str]:
+    """``(stride, metres per unit, folder)`` of a loaded scene's ground-truth depth maps (ground_truth.yaml
+    ``synthetic.depth``); InputError when it has none (not a rendered synthetic scene) or no camera."""
+    gt = scene.ground_truth
+    info = ((gt.extras.get("synthetic") if gt is not None else None) or {}).get("depth")
+    if not info or scene.camera is None:
+        raise InputError(Problem(str(scene.path / "ground_truth.yaml"), "synthetic.depth",
+                                 "no ground-truth depth: not a rendered synthetic scene",
+                                 "generate it with bijcr synth (without --no-render)"))
+    return int(info["stride"]), float(info["units_m"]), str(info.get("folder", "depth"))
+
+
 def ground_truth_cloud(scene_path: str | Path, stride: int = 1, max_depth: float | None = None,
                        voxel: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """True cloud of a rendered synthetic scene.
@@ -42,15 +54,7 @@ def ground_truth_cloud(scene_path: str | Path, stride: int = 1, max_depth: float
 
     scene = load_scene(scene_path)
     gt = scene.ground_truth
-    meta = (gt.extras.get("synthetic") if gt is not None else None) or {}
-    depth_info = meta.get("depth")
-    if not depth_info or scene.camera is None:
-        raise InputError(Problem(str(scene.path / "ground_truth.yaml"), "synthetic.depth",
-                                 "no ground-truth depth: not a rendered synthetic scene",
-                                 "generate it with bijcr synth (without --no-render)"))
-    s = int(depth_info["stride"])
-    units = float(depth_info["units_m"])
-    folder = str(depth_info.get("folder", "depth"))
+    s, units, folder = _rendered_depth(scene)
     K = scene.camera.K
     T_b1_b = [np.eye(4), gt.T_b1_b2]
     T_e_c = [gt.T_e1_c1, gt.T_e2_c2]
@@ -94,13 +98,7 @@ def ground_truth_views(scene_path: str | Path):
 
     scene = load_scene(scene_path)
     gt = scene.ground_truth
-    depth_info = ((gt.extras.get("synthetic") if gt is not None else None) or {}).get("depth")
-    if not depth_info or scene.camera is None:
-        raise InputError(Problem(str(scene.path / "ground_truth.yaml"), "synthetic.depth",
-                                 "no ground-truth depth: not a rendered synthetic scene",
-                                 "generate it with bijcr synth (without --no-render)"))
-    s, units = int(depth_info["stride"]), float(depth_info["units_m"])
-    folder = str(depth_info.get("folder", "depth"))
+    s, units, folder = _rendered_depth(scene)
     K = scene.camera.K
     # a depth pixel (i, j) is image pixel (s j, s i): col = (fx x / z + cx) / s
     K_map = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]]) / s
