@@ -8,11 +8,15 @@ Two sets of ``bijcr synth`` scenes (8 views per arm, 5 objects, the emulator's "
 separately:
 
 - **tuning** (seeds 0-19): the scenes the code has been tuned on; many commits and docs name them one by one.
-- **held-out** (seeds 17000-17049, ``HELDOUT_SEEDS``): scenes nobody has looked at scene by scene. The targets
+- **held-out** (seeds 18000-18049, ``HELDOUT_SEEDS``): scenes nobody has looked at scene by scene. The targets
   are judged on these. Rule: once a held-out range has been studied scene by scene (failures looked into,
   code changed for them), it becomes tuning data: move the held-out set to a new, unused range and say so
   in docs/tasks.md. Seeds 1000-1019, 7000-7049, 9000-9049, 11000-11049, 12000-12049, 13000-13019,
-  14000-14049, 15000-15049 and 16000-16049 have been studied (issue 22) and are no longer held out.
+  14000-14049, 15000-15049 and 16000-16049 have been studied (issue 22) and are no longer held out; 17000-17049
+  decided two changes and is retired with them.
+
+``--views V --objects O`` run scenes with other counts (their own folders, ``synth_SEED_vV_oO``): the code's
+figures should not hang on the sets' 8 views and 5 objects.
 
 Each scene runs both tasks in each mode:
 
@@ -66,11 +70,13 @@ MODES = ("pipeline", "masks", "gt", "oracle")
 DEFAULT_MODES = ("pipeline", "gt", "oracle")
 MODE_NAME = {"pipeline": "pipeline (calibrated)", "masks": "pipeline (calibrated), segmented with the masks",
              "gt": "ground-truth transforms", "oracle": "oracle: ground-truth transforms and objects"}
+VIEWS, OBJECTS = 8, 5  # per arm, on the table: the sets' scenes (--views / --objects run others)
 TUNING_SEEDS = tuple(range(0, 20))
-HELDOUT_SEEDS = tuple(range(17000, 17050))  # move on once studied scene by scene (docs/tasks.md)
+HELDOUT_SEEDS = tuple(range(18000, 18050))  # move on once studied scene by scene (docs/tasks.md)
 STUDIED_SEEDS = (tuple(range(1000, 1020)) + tuple(range(7000, 7050)) + tuple(range(9000, 9050))
                  + tuple(range(11000, 11050)) + tuple(range(12000, 12050)) + tuple(range(13000, 13020))
-                 + tuple(range(14000, 14050)) + tuple(range(15000, 15050)) + tuple(range(16000, 16050)))  # once held out
+                 + tuple(range(14000, 14050)) + tuple(range(15000, 15050)) + tuple(range(16000, 16050))
+                 + tuple(range(17000, 17050)))  # once held out
 SETS = {"heldout": HELDOUT_SEEDS, "tuning": TUNING_SEEDS}
 SET_NAME = {"heldout": "held-out", "tuning": "tuning", "other": "other seeds"}
 TARGET = 0.90  # held-out pipeline success, both tasks
@@ -88,18 +94,26 @@ def set_of(seed: int) -> str:
     return next((name for name, seeds in SETS.items() if seed in seeds), "other")
 
 
-def make_scene(base: Path, seed: int, fresh: bool) -> tuple[Path, float]:
-    """The synthetic scene of ``seed`` (made once, then reused); returns (folder, seconds spent now)."""
+def scene_name(seed: int, views: int = VIEWS, objects: int = OBJECTS) -> str:
+    """The scene folder's name: ``synth_SEED``, with ``_vV_oO`` where the counts are not the default ones (so
+    that scenes of other counts never share a cache folder with the default ones)."""
+    extra = "" if (views, objects) == (VIEWS, OBJECTS) else f"_v{views}_o{objects}"
+    return f"synth_{seed:03d}{extra}"
+
+
+def make_scene(base: Path, seed: int, fresh: bool, views: int = VIEWS, objects: int = OBJECTS) -> tuple[Path, float]:
+    """The synthetic scene of ``seed`` with ``views`` per arm and ``objects`` on the table (made once, then
+    reused); returns (folder, seconds spent now)."""
     from bimanual_app.synth import make_synthetic_scene
 
-    path = base / "scenes" / f"synth_{seed:03d}"
+    path = base / "scenes" / scene_name(seed, views, objects)
     if fresh and path.exists():
         shutil.rmtree(path)
     if (path / "scene.yaml").exists():
         return path, 0.0
     t = time.perf_counter()
     with contextlib.redirect_stderr(io.StringIO()):
-        make_synthetic_scene(path, seed=seed, views=8, objects=5, noise="paper", progress=False)
+        make_synthetic_scene(path, seed=seed, views=views, objects=objects, noise="paper", progress=False)
     return path, time.perf_counter() - t
 
 
@@ -144,7 +158,7 @@ def run_scene(job: dict) -> dict:
 
     t0 = time.perf_counter()
     base, seed, modes, fresh = Path(job["base"]), job["seed"], job["modes"], job["fresh"]
-    scene, synth_dt = make_scene(base, seed, fresh)
+    scene, synth_dt = make_scene(base, seed, fresh, job.get("views", VIEWS), job.get("objects", OBJECTS))
     rows = {m: {} for m in modes}
     stage_t = {m: {} for m in modes}
     for mode in modes:
@@ -199,10 +213,11 @@ def blas_core(blas_kernel: str | None = None) -> str:
 
 def crashed_scene(job: dict, err: Exception) -> dict:
     """The result of a scene whose Ray task failed as a whole (its worker died): every run a failure."""
+    name = scene_name(job["seed"], job.get("views", VIEWS), job.get("objects", OBJECTS))
     rows = {m: {t: {"task": t, "planned": False, "estimate_ok": False, "truth_ok": False, "stage": "crash",
-                    "reason": str(err)[:200], "timings": {}, "scene": f"synth_{job['seed']:03d}"}
+                    "reason": str(err)[:200], "timings": {}, "scene": name}
                 for t in job["tasks"]} for m in job["modes"]}
-    return {"seed": job["seed"], "scene": f"synth_{job['seed']:03d}", "rows": rows,
+    return {"seed": job["seed"], "scene": name, "rows": rows,
             "stage_t": {m: {} for m in job["modes"]}, "synth_s": 0.0, "wall": 0.0}
 
 
@@ -225,6 +240,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--scenes", type=int, default=None, help="the first N scenes of each set (or from --first-seed)")
     ap.add_argument("--first-seed", type=int, default=None, help="seeds S..S+N-1 (with --scenes) instead of the sets")
     ap.add_argument("--seeds", default=None, help="comma-separated seeds instead of the sets")
+    ap.add_argument("--views", type=int, default=VIEWS,
+                    help=f"viewpoints per arm in each scene (default {VIEWS}; other counts get their own scene folders)")
+    ap.add_argument("--objects", type=int, default=OBJECTS,
+                    help=f"objects on the table in each scene (default {OBJECTS})")
     ap.add_argument("--fresh", action="store_true", help="re-make the scenes and every stage output")
     ap.add_argument("--no-save", action="store_true", help="do not write docs/bench/tasks.md")
     ap.add_argument("--base", default=str(ROOT / "runs" / "bench_tasks"), help="cache folder")
@@ -264,7 +283,8 @@ def choose(args: argparse.Namespace) -> tuple[list[int], list[str], list[str], b
         sets = [args.set] if args.set else list(SETS)
         seeds = [s for name in sets for s in SETS[name][:n]]
     full = (not args.seeds and args.first_seed is None and not args.quick and args.scenes is None
-            and args.set is None and modes == default_modes and tasks == list(TASKS) and not args.blas_kernel)
+            and args.set is None and modes == default_modes and tasks == list(TASKS) and not args.blas_kernel
+            and (args.views, args.objects) == (VIEWS, OBJECTS))
     return seeds, modes, tasks, full
 
 
@@ -279,7 +299,11 @@ def main(argv=None) -> int:
         except ValueError as e:
             raise SystemExit(str(e)) from None
     base = Path(args.base)
+    if not (3 <= args.views <= 40 and 1 <= args.objects <= 10):
+        raise SystemExit(f"bench/tasks.py: --views {args.views} --objects {args.objects}: bijcr synth makes 3..40 "
+                         "views per arm and 1..10 objects -> fix: counts in those ranges")
     jobs = [{"base": str(base), "seed": s, "modes": modes, "fresh": args.fresh, "tasks": tasks,
+             "views": args.views, "objects": args.objects,
              "stages": stage_folders(modes, args.blas_kernel)} for s in seeds]
     cpus = args.jobs or os.cpu_count() or 1
     _log(f"{len(jobs)} scenes x {len(modes)} modes x {len(tasks)} tasks on Ray "
@@ -375,7 +399,8 @@ def report(results: list[dict], modes: list[str], tasks: list[str], total: float
     by_set = {name: [r for r in results if set_of(r["seed"]) == name] for name in ("heldout", "tuning", "other")}
     L = ["# Task benchmark (joint grasp, hand-over)", "",
          f"Command: `{cmd}`", "",
-         f"{len(results)} synthetic scene{'s' * (len(results) != 1)} (`bijcr synth`, 8 views per arm, 5 objects, "
+         f"{len(results)} synthetic scene{'s' * (len(results) != 1)} (`bijcr synth`, {args.views} views per arm, "
+         f"{args.objects} objects, "
          "paper noise): the held-out "
          f"set (seeds {HELDOUT_SEEDS[0]}..{HELDOUT_SEEDS[-1]}, never looked at scene by scene; the targets are "
          f"judged on it) and the tuning set (seeds {TUNING_SEEDS[0]}..{TUNING_SEEDS[-1]}, the scenes the code was "
