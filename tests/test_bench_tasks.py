@@ -196,3 +196,7 @@ def test_two_runs_paired_scene_by_scene_from_their_progress_lines():
     assert (jg["n"], jg["ok_before"], jg["ok_after"], jg["gained"], jg["lost"]) == (2, 1, 2, [15001], [])
     assert (ho["ok_before"], ho["ok_after"], ho["gained"], ho["lost"]) == (1, 1, [15000], [(15001, "FAIL[preview]")])
     assert tool.main(["only-one.log"]) == 2
+    other = {"seed": 18200, "scene": bench_tasks.scene_name(18200, 5, 7), "wall": 3.0,
+             "rows": {"pipeline": {"handover": {"truth_ok": True, "stage": ""}}}}
+    assert tool.parse_lines(["[bench tasks] " + bench_tasks.scene_line(1, 1, other)]) == {
+        ("pipeline", "handover", 18200): "OK"}  # a scene of other counts

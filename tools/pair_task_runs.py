@@ -5,7 +5,8 @@ output (``2> base.log``) for the code before and after a change on the same stag
 
     .venv/bin/python tools/pair_task_runs.py base.log [more base logs] -- change.log [more change logs]
 
-Only the scenes and tasks present in both are compared; each total carries its 95 % Wilson interval.
+Only the scenes and tasks present in both are compared; each total carries its 95 % Wilson interval. A scene
+in several logs of one side counts as in the last of them (a re-run of some scenes overrides them).
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ from collections import defaultdict
 from pathlib import Path
 
 USAGE = "usage: tools/pair_task_runs.py BEFORE.log [...] -- AFTER.log [...]"
-_LINE = re.compile(r"\[bench tasks\] \d+/\d+ synth_(\d+) \(.*?\) \d+ s: (.*)$")
+# (scenes of other view and object counts are named synth_SEED_vV_oO: bench.tasks.scene_name)
+_LINE = re.compile(r"\[bench tasks\] \d+/\d+ synth_(\d+)(?:_v\d+_o\d+)? \(.*?\) \d+ s: (.*)$")
 
 
 def parse_lines(lines) -> dict:
