@@ -9,6 +9,7 @@ import pytest
 from bimanual_app.tasks._grasps import GraspSpec
 from bimanual_app.tasks._motion import PlanFailure
 from bimanual_app.tasks._planners import (
+    PUSH_PRESS_MARGIN,
     StrategiesFailed,
     Strategy,
     _Pair,
@@ -88,24 +89,60 @@ def _push_pair(contact_gap):
 
 def test_squeeze_ladder_falls_back_to_half_the_gap_where_the_whole_gap_is_out_of_reach():
     box, G = _push_pair(0.012)
-    P = _Pair(_Motion(box, reach=0.012), G, True, np.array([0.0, 0.0, 1.0]))
+    P = _Pair(_Motion(box, reach=0.012 + PUSH_PRESS_MARGIN), G, True, np.array([0.0, 0.0, 1.0]), PUSH_PRESS_MARGIN)
     touch = {a: G[a].T_b1_g for a in G}
     ladder = _squeeze_strategies(P, touch, {})
     assert [s.name for s in ladder] == ["press and the gap", "press and half the gap", "press alone"]
-    with pytest.raises(PlanFailure, match="cannot press 1.6 cm"):  # each strategy on its own
+    whole = 0.004 + PUSH_PRESS_MARGIN + 0.012
+    with pytest.raises(PlanFailure, match=f"cannot press {whole * 100:.1f} cm"):  # each strategy on its own
         ladder[0].attempt()
     S, _ = ladder[1].attempt()
-    assert S["primary"][0, 3] == pytest.approx(-0.062 + 0.004 + 0.006)  # press + half the 1.2 cm gap
+    # press (and the margin for the estimate's width error) + half the 1.2 cm gap
+    assert S["primary"][0, 3] == pytest.approx(-0.062 + 0.004 + PUSH_PRESS_MARGIN + 0.006)
     name, (S, _) = first_success(ladder)
     assert name == "press and half the gap"
 
 
 def test_squeeze_ladder_without_a_gap_has_one_strategy_and_keeps_its_reason():
     box, G = _push_pair(0.0)
-    P = _Pair(_Motion(box, reach=0.001), G, True, np.array([0.0, 0.0, 1.0]))
+    P = _Pair(_Motion(box, reach=0.001), G, True, np.array([0.0, 0.0, 1.0]), PUSH_PRESS_MARGIN)
     ladder = _squeeze_strategies(P, {a: G[a].T_b1_g for a in G}, {})
     assert [s.name for s in ladder] == ["press and the gap"]
     with pytest.raises(StrategiesFailed) as e:
         first_success(ladder)
     assert [n for n, _ in e.value.failures] == ["press and the gap"]
-    assert "cannot press 0.4 cm" in e.value.first.message
+    assert f"cannot press {(0.004 + PUSH_PRESS_MARGIN) * 100:.1f} cm" in e.value.first.message
+
+
+@pytest.mark.parametrize("fails_at, margins_tried, planned", [
+    ("squeeze", [PUSH_PRESS_MARGIN, 0.0], True),  # too deep for an arm: planned at the press alone
+    ("lift", [PUSH_PRESS_MARGIN, 0.0], True),
+    ("reach", [PUSH_PRESS_MARGIN], False),  # before the squeeze: the press changes nothing, no second try
+])
+def test_a_push_pair_squeezes_deeper_first_then_at_its_press(monkeypatch, fails_at, margins_tried, planned):
+    import bimanual_app.tasks._planners as planners
+    from bimanual_app.tasks._planners import plan_joint_grasp
+
+    tried = []
+
+    def fake(motion, choice, q_start, width_start, lift, up, at, press_margin=0.0):
+        tried.append(press_margin)
+        at.extend(["approach", "squeeze", "lift"][: ["reach", "approach", "squeeze", "lift"].index(fails_at)])
+        if press_margin > 0 or fails_at == "reach" or choice.kind == "pinch":
+            raise PlanFailure("reach", "cannot")
+        return "plan"
+
+    monkeypatch.setattr(planners, "_joint_grasp", fake)
+    choice = type("Choice", (), {"kind": "push"})()
+    if planned:
+        assert plan_joint_grasp(None, choice, {}, {}) == "plan"
+    else:
+        with pytest.raises(PlanFailure) as e:
+            plan_joint_grasp(None, choice, {}, {})
+        assert e.value.message == "reach: cannot"  # the phase it failed at, then why
+    assert tried == margins_tried
+    tried.clear()
+    choice.kind = "pinch"  # a pinch pair closes its fingers: no press margin, one try
+    with pytest.raises(PlanFailure):
+        plan_joint_grasp(None, choice, {}, {})
+    assert tried == [0.0]
