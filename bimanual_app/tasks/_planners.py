@@ -53,7 +53,7 @@ PUSH_STANDOFF = 0.01
 # m: a push pair's squeeze goes this much deeper than the grasp's ``press`` past the estimated faces. A
 # reconstruction's box comes out wider than the real one (the fused views' faces blur outwards: on the
 # task bench's pipeline clouds its width errs by +5.8 to +8.8 mm at the 95th percentile, 138 and 76 studied
-# boxes), so pressed only ``press`` past the estimated faces, the fingertips pressed the real box 3-4 mm and
+# boxes), so pressed only ``press`` past the estimated faces, the fingertips pressed the real box 4-6 mm and
 # a 2 kg carton slid out of them (docs/tasks.md). Where the deeper squeeze cannot be planned, the press alone.
 PUSH_PRESS_MARGIN = 0.006
 HANDOVER_LIFT = 0.06  # m straight up after the pick, before the free carry
