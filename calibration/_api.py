@@ -374,6 +374,13 @@ def scene_cloud_and_views(scene, result: CalibrationResult, conf_threshold: floa
         points = points[keep]
         colors = None if colors is None else colors[keep]
         info["points"] = int(len(points))
+    if views is not None and len(points):
+        from dataclasses import replace
+
+        from bimanual_app.views import views_disagreement
+
+        views = replace(views, disagreement=views_disagreement(points, views))
+        info["views_disagreement_m"] = views.disagreement
     return points, colors, info, views
 
 

@@ -32,8 +32,10 @@ def carved_unseen(obj_points: np.ndarray, other_points: np.ndarray, support: Sup
     Only cells more than ``skin`` from the object's own points and from ``other_points`` count (nearer, the
     views' noise decides; the object's own surface is in its points), from ``min_elevation`` above the
     table to the object's top. A cell is seen when some view's surface at its pixel lies more than ``tol``
-    beyond it (:func:`bimanual_app.views.seen_free`). Cells inside the object (a mug's hollow, the body under
-    a can's seen top) are unseen too.
+    beyond it (:func:`bimanual_app.views.seen_free`), or more than the views' own disagreement where that is
+    larger (``views.disagreement``: a real capture's views see centimetres past each other's surfaces, and
+    nearer than that a view seeing past a cell proves nothing). Cells inside the object (a mug's hollow, the
+    body under a can's seen top) are unseen too.
 
     ``obj_points`` (M, 3), ``other_points`` (O, 3): the object's and the rest of the scene's points, in b1.
     """
@@ -53,4 +55,4 @@ def carved_unseen(obj_points: np.ndarray, other_points: np.ndarray, support: Sup
     G = G[(d_own > skin) & (d_own <= radius)]
     if len(O) and len(G):
         G = G[~np.isfinite(cKDTree(O).query(G, distance_upper_bound=skin)[0])]
-    return G[~seen_free(G, views, tol)] if len(G) else G
+    return G[~seen_free(G, views, max(tol, views.disagreement))] if len(G) else G

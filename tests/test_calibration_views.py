@@ -2,6 +2,7 @@
 what they saw through is empty."""
 
 import numpy as np
+import pytest
 from _synth_fixtures import true_T_b1_c
 from scipy.spatial import cKDTree
 
@@ -34,6 +35,11 @@ def test_views_put_each_pixel_on_the_cloud_and_see_through_free_space(synth_none
         assert np.percentile(tree.query(_pixels_in_b1(views, v))[0], 95) < 1e-3  # the robots' own points aside
     sample = cloud[::25]
     assert seen_free(sample, views).mean() < 0.01  # nobody sees through a surface
+    # exact views agree on their own cloud (to the maps' sampling); the calibration says how far
+    import json
+
+    info = json.loads((tmp_path / "cal" / "calibration.json").read_text())["cloud"]
+    assert views.disagreement < 0.003 and info["views_disagreement_m"] == pytest.approx(views.disagreement)
     above = sample + np.array([0.0, 0.0, 0.05])
     above = above[tree.query(above)[0] > 0.02]  # clear of everything
     assert seen_free(above, views).mean() > 0.8

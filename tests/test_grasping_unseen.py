@@ -125,6 +125,23 @@ def test_carving_finds_the_far_half_no_camera_saw_and_nothing_around_a_seen_obje
     assert np.all(np.linalg.norm(U2[:, :2] - np.asarray(CENTRE), axis=1) < DIAMETER / 2)  # its inside only
 
 
+def test_carving_trusts_a_view_seeing_past_a_cell_only_beyond_the_views_own_disagreement():
+    """Views that see 3 cm past each other's surfaces (a real capture's) prove a cell free only when they see
+    more than that past it: the ring of cells just outside the cylinder stays unseen, those farther out do not."""
+    from dataclasses import replace
+
+    from grasping._unseen import carved_unseen
+
+    P2, L2 = make_cloud([Obj("cylinder", CENTRE, (DIAMETER, DIAMETER, 0.08), 0.0)], table_size=(0.5, 0.5))
+    sup = estimate_support(P2, L2)
+    all_round = _cylinder_views(list(range(-180, 180, 45)))
+    sharp = carved_unseen(P2[L2 == 0], P2[L2 != 0], sup, all_round)
+    blunt = carved_unseen(P2[L2 == 0], P2[L2 != 0], sup, replace(all_round, disagreement=0.03))
+    r = np.linalg.norm(blunt[:, :2] - np.asarray(CENTRE), axis=1)
+    assert len(blunt) > len(sharp) + 50 and np.any(r > DIAMETER / 2 + 0.015)
+    assert np.all(r < DIAMETER / 2 + 0.03 + 0.005)  # still within the carving's radius
+
+
 def test_a_handover_keeps_its_fingers_out_of_what_no_camera_saw():
     """A box seen only by cameras on its -y side: the air behind it (+y) may hold more of it. With the capture's
     depth views on the cloud, the hand-over's pick and receiver are drawn with those cells solid
