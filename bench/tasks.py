@@ -299,9 +299,12 @@ def main(argv=None) -> int:
         except ValueError as e:
             raise SystemExit(str(e)) from None
     base = Path(args.base)
-    if not (3 <= args.views <= 40 and 1 <= args.objects <= 10):
-        raise SystemExit(f"bench/tasks.py: --views {args.views} --objects {args.objects}: bijcr synth makes 3..40 "
-                         "views per arm and 1..10 objects -> fix: counts in those ranges")
+    from bimanual_app.synth import OBJECTS_RANGE, VIEWS_RANGE
+
+    (v_lo, v_hi), (o_lo, o_hi) = VIEWS_RANGE, OBJECTS_RANGE
+    if not (v_lo <= args.views <= v_hi and o_lo <= args.objects <= o_hi):
+        raise SystemExit(f"bench/tasks.py: --views {args.views} --objects {args.objects}: bijcr synth makes "
+                         f"{v_lo}..{v_hi} views per arm and {o_lo}..{o_hi} objects -> fix: counts in those ranges")
     jobs = [{"base": str(base), "seed": s, "modes": modes, "fresh": args.fresh, "tasks": tasks,
              "views": args.views, "objects": args.objects,
              "stages": stage_folders(modes, args.blas_kernel)} for s in seeds]

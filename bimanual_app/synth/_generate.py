@@ -76,6 +76,8 @@ class _Log:
 
 #: the farthest pivot of the pose errors (m) bijcr synth accepts: beyond it no wrist camera sees the point
 MAX_POSE_PIVOT_M = 5.0
+#: the viewpoints per arm and the objects on the table bijcr synth makes (inclusive)
+VIEWS_RANGE, OBJECTS_RANGE = (3, 40), (1, 10)
 
 
 def _check_args(out: Path, views, objects, noise, outliers, touching, overwrite, pointmap_size, image_size,
@@ -85,10 +87,12 @@ def _check_args(out: Path, views, objects, noise, outliers, touching, overwrite,
     def bad(field, msg, fix):
         probs.append(Problem("bijcr synth", field, msg, fix))
 
-    if not isinstance(views, (int, np.integer)) or not 3 <= views <= 40:
-        bad("views", f"views per arm must be an integer in 3..40, got {views!r}", "hand-eye calibration needs >= 3 views")
-    if not isinstance(objects, (int, np.integer)) or not 1 <= objects <= 10:
-        bad("objects", f"objects must be an integer in 1..10, got {objects!r}", "the table holds at most 10")
+    (v_lo, v_hi), (o_lo, o_hi) = VIEWS_RANGE, OBJECTS_RANGE
+    if not isinstance(views, (int, np.integer)) or not v_lo <= views <= v_hi:
+        bad("views", f"views per arm must be an integer in {v_lo}..{v_hi}, got {views!r}",
+            "hand-eye calibration needs >= 3 views")
+    if not isinstance(objects, (int, np.integer)) or not o_lo <= objects <= o_hi:
+        bad("objects", f"objects must be an integer in {o_lo}..{o_hi}, got {objects!r}", "the table holds at most 10")
     if noise not in NOISE_LEVELS:
         bad("noise", f"unknown noise level {noise!r}", f"use one of {', '.join(NOISE_LEVELS)}")
     if map_noise is not None and not isinstance(map_noise, MapNoise) and map_noise not in MAP_NOISES:

@@ -406,10 +406,9 @@ def _joint_approach(P: _Pair, plan: TaskPlan, pre: dict) -> dict:
 
 
 def _squeeze_strategies(P: _Pair, touch: dict, q: dict) -> list[Strategy]:
-    """A push pair's squeezes, in order: the press (and the pair's ``press_margin``) plus the gap to the faces past
-    the contact; where an arm
-    cannot go that far (the far end of its reach), half the gap, then the press alone (only the first when
-    there is no gap). Each attempt returns ``(squeeze poses, trajectories)``."""
+    """A push pair's squeezes, in order: the press (and the pair's ``press_margin``) plus the gap to the faces
+    past the contact; where an arm cannot go that far (the far end of its reach), half the gap, then the press
+    alone (only the first when there is no gap). Each attempt returns ``(squeeze poses, trajectories)``."""
     gap = {a: _face_gap(P.motion, P.G[a]) for a in ARMS}
 
     def attempt(f):
