@@ -298,19 +298,59 @@ def refine_circle(xy: np.ndarray, centre: np.ndarray, radius: float, scale: floa
     return res.x[:2].copy(), float(abs(res.x[2]))
 
 
-def _top_cover(xy: np.ndarray, elev: np.ndarray, c: np.ndarray, r: float, top: float) -> float:
-    """Share of the cells (``TOP_CELL``) of the disc of radius ``r`` - 7 mm about ``c`` (2,) that hold a
-    point (``xy`` (M, 2), elevations ``elev`` (M,)) within 4 mm of the height ``top``: 1 for a closed top."""
-    from scipy.spatial import cKDTree
-
+def _top_cells(c: np.ndarray, r: float) -> np.ndarray:
+    """(K, 2) centres of the cells (``TOP_CELL``) of the disc of radius ``r`` - 7 mm about ``c`` (2,)."""
     g = np.arange(-r, r, TOP_CELL) + 0.5 * TOP_CELL
     X, Y = np.meshgrid(g, g)
     disc = np.hypot(X, Y) < r - 0.007
-    at_top = xy[np.abs(elev - top) < 0.004] - c
-    if not disc.any() or not len(at_top):
+    return np.c_[X[disc], Y[disc]] + np.asarray(c, dtype=np.float64)
+
+
+def _top_lid_cells(xy: np.ndarray, elev: np.ndarray, cells: np.ndarray, top: float) -> np.ndarray:
+    """(K,) bool: the cells (K, 2) that hold a point (``xy`` (M, 2), elevations ``elev`` (M,)) within 4 mm of
+    the height ``top``."""
+    from scipy.spatial import cKDTree
+
+    at_top = xy[np.abs(elev - top) < 0.004]
+    if not len(cells) or not len(at_top):
+        return np.zeros(len(cells), dtype=bool)
+    dd, _ = cKDTree(at_top).query(cells, k=1)
+    return dd < 0.6 * TOP_CELL
+
+
+def _top_cover(xy: np.ndarray, elev: np.ndarray, c: np.ndarray, r: float, top: float) -> float:
+    """Share of the cells of the top disc (:func:`_top_cells`) that hold a point at the height ``top``
+    (:func:`_top_lid_cells`): 1 for a closed top seen whole."""
+    cells = _top_cells(c, r)
+    return float(np.mean(_top_lid_cells(xy, elev, cells, top))) if len(cells) else 0.0
+
+
+def _top_closed(xy: np.ndarray, elev: np.ndarray, c: np.ndarray, r: float, top: float, support: Support,
+                views) -> float:
+    """How closed the top disc is, as the capture's depth views saw it: the share of its seen cells that are a
+    lid, 0 when less than ``TOP_MIN_SEEN`` of it was seen.
+
+    A cell is seen *through* when some view saw more than its tolerance past the cell's centre at the top's
+    height (``bimanual_app.views.see_past``; the tolerance is ``PRIMITIVE_TOL`` or the views' own
+    disagreement where larger): the inside of an open cup. It is a *lid* when, instead, a point of the object
+    lies there at the top's height or a view's surface lies within the tolerance of it. A cell neither is
+    hidden and counts for nothing: the points alone cannot tell an unseen part of a can's lid from a cup's
+    opening, the views can."""
+    from bimanual_app.views import see_past
+
+    cells = _top_cells(c, r)
+    if not len(cells):
         return 0.0
-    dd, _ = cKDTree(at_top).query(np.c_[X[disc], Y[disc]], k=1)
-    return float(np.mean(dd < 0.6 * TOP_CELL))
+    e1, e2 = _perp_basis(support.up)
+    X = cells[:, :1] * e1 + cells[:, 1:] * e2 + (support.height + top - 0.002) * support.up
+    past = see_past(X, views)
+    tol = max(PRIMITIVE_TOL, float(views.disagreement))
+    through = past > tol
+    lid = (_top_lid_cells(xy, elev, cells, top) | (np.abs(past) <= tol)) & ~through
+    seen = int(lid.sum() + through.sum())
+    if seen < TOP_MIN_SEEN * len(cells):
+        return 0.0
+    return float(lid.sum()) / seen
 
 
 def fit_circle(xy: np.ndarray) -> tuple[np.ndarray, float] | None:
@@ -333,18 +373,22 @@ def fit_circle(xy: np.ndarray) -> tuple[np.ndarray, float] | None:
 PRIMITIVE_TOL = 0.005  # m: a seen point this near a box's or cylinder's surface fits it (cloud noise ~2-3 mm)
 PRIMITIVE_MIN_FIT = 0.9  # share of the seen points that must fit; the bench's mugs, ducks, bunnies and tori: <= 0.86
 TOP_CELL = 0.01  # m: cells of a cylinder's top disc that must hold a point at the top (a mug shows a rim only)
+TOP_MIN_SEEN = 0.5  # share of the top disc the depth views must have seen (a lid, or through it) to judge it
 
 
-def primitive_fit(geo: ObjectGeometry, support: Support, tol: float = PRIMITIVE_TOL) -> tuple[str, float]:
+def primitive_fit(geo: ObjectGeometry, support: Support, tol: float = PRIMITIVE_TOL, views=None) -> tuple[str, float]:
     """Whether the object's seen points are a box or an upright cylinder: ``("box" | "cylinder", fit)`` when
     at least ``PRIMITIVE_MIN_FIT`` of them lie within ``tol`` of that primitive's surface, else
     ``("free-form", best fit)``.
 
     The box is the object's gravity-aligned box (``geo.T_b1_box``, ``geo.extent``); the cylinder is the
     least-squares circle of the side points (radius ``CYL_RADIUS``) from the table to the top, and it must
-    also be closed at the top: the cells (``TOP_CELL``) of its top disc, 7 mm in from the rim, each hold a
-    point at the top's height (a mug seen from above shows its rim and its inside, not a lid). Only seen
-    points count (``geo.observed``): completion fills in the primitive it assumes.
+    also be closed at the top. With the capture's depth ``views`` (``bimanual_app.views.DepthViews``), the
+    share of its top disc seen as a lid among the part seen at all (:func:`_top_closed`: a cup's opening is
+    seen through); without them, the share of the disc's cells (``TOP_CELL``, 7 mm in from the rim) that
+    hold a point at the top's height (a mug seen from above shows its rim and its inside, not a lid; nor does
+    a can whose top no camera saw whole). Only seen points count (``geo.observed``): completion fills in the
+    primitive it assumes.
 
     A hand-over of an object whose shape the cloud determines is safer than of a free-form one (a mug's
     handle or a bunny's far side that no camera saw meets the receiver's fingers; on the task bench, two
@@ -373,7 +417,9 @@ def primitive_fit(geo: ObjectGeometry, support: Support, tol: float = PRIMITIVE_
             elev = support.elevation(P)
             top = float(np.percentile(elev, 99.5))
             d = np.minimum(np.abs(rho - r), np.where(rho <= r + tol, np.abs(elev - top), np.inf))
-            cyl = min(float(np.mean(d < tol)), _top_cover(xy, elev, c, r, top))
+            closed = (_top_cover(xy, elev, c, r, top) if views is None or not len(views)
+                      else _top_closed(xy, elev, c, r, top, support, views))
+            cyl = min(float(np.mean(d < tol)), closed)
     if max(box, cyl) >= PRIMITIVE_MIN_FIT:
         return ("box", box) if box >= cyl else ("cylinder", cyl)
     return "free-form", max(box, cyl)

@@ -223,7 +223,7 @@ def plan_object(k: int, cloud: SceneCloud, support: Support, gripper: GripperMod
     geo = object_geometry(k, cloud.points[mask], support, voxel=params.sampler.ray_radius * 0.75,
                           background=cloud.points[cloud.labels < 0])
     plan = ObjectPlan(k, geo, "single")
-    plan.shape, plan.shape_fit = primitive_fit(geo, support)
+    plan.shape, plan.shape_fit = primitive_fit(geo, support, views=cloud.views)
     sp = params.sampler
     max_cw = sp.max_contact_width(gripper)
     plan.problems = check_graspable(geo, max(sp.min_width, gripper.min_width + 2 * sp.min_clearance), max_cw, source,

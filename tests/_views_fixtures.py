@@ -42,6 +42,25 @@ def _hit_cylinder(o, d, centre, radius, height) -> np.ndarray:
     return np.where(top & (tt < t), tt, t)
 
 
+def _hit_cup(o, d, centre, radius, height) -> np.ndarray:
+    """(N,) ray parameter of the first hit on an upright cup without a lid (thin wall, inside bottom at z = 0;
+    inf: none): its outer side, or through its opening its inner side or its bottom."""
+    closed = _hit_cylinder(o, d, centre, radius, height)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tt = (height - o[2]) / d[:, 2]
+        tb = -o[2] / d[:, 2]
+    p = o[:2] + tt[:, None] * d[:, :2]
+    through = (tt > 0) & (np.sum((p - centre) ** 2, axis=1) <= radius ** 2) & np.isclose(closed, tt)
+    oc = o[:2] - np.asarray(centre)
+    a = np.maximum(np.sum(d[:, :2] ** 2, axis=1), 1e-12)
+    b = 2 * d[:, :2] @ oc
+    disc = np.maximum(b ** 2 - 4 * a * (oc @ oc - radius ** 2), 0.0)
+    t_wall = (-b + np.sqrt(disc)) / (2 * a)  # leaving the circle: the inner side, seen from inside
+    z = o[2] + t_wall * d[:, 2]
+    inside = np.where((z >= 0) & (z <= height), t_wall, tb)
+    return np.where(through, inside, closed)
+
+
 def _hit_box(o, d, centre, size, yaw) -> np.ndarray:
     """(N,) ray parameter of the first hit on a box standing on the table (slab method; inf: none)."""
     c, s = np.cos(yaw), np.sin(yaw)
@@ -57,9 +76,9 @@ def _hit_box(o, d, centre, size, yaw) -> np.ndarray:
 
 
 def render(cameras: list[np.ndarray], cylinders: list[tuple[tuple[float, float], float, float]],
-           table_half: float = 0.3, table_centre=(0.3, 0.0), boxes=()) -> DepthViews:
-    """Depth views of the table, ``cylinders`` ((x, y), radius, height) and ``boxes`` ((x, y), (sx, sy, sz),
-    yaw) from ``cameras`` (4, 4) poses."""
+           table_half: float = 0.3, table_centre=(0.3, 0.0), boxes=(), cups=()) -> DepthViews:
+    """Depth views of the table, ``cylinders`` ((x, y), radius, height), ``boxes`` ((x, y), (sx, sy, sz),
+    yaw) and ``cups`` (as cylinders, without a lid) from ``cameras`` (4, 4) poses."""
     K = np.array([F, F, (W - 1) / 2, (H - 1) / 2])
     cols, rows = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
     rays_c = np.stack([(cols - K[2]) / K[0], (rows - K[3]) / K[1], np.ones_like(cols)], axis=-1).reshape(-1, 3)
@@ -74,6 +93,8 @@ def render(cameras: list[np.ndarray], cylinders: list[tuple[tuple[float, float],
             t = np.minimum(t, _hit_cylinder(o, d, np.asarray(centre, dtype=np.float64), radius, height))
         for centre, size, yaw in boxes:
             t = np.minimum(t, _hit_box(o, d, centre, size, yaw))
+        for centre, radius, height in cups:
+            t = np.minimum(t, _hit_cup(o, d, np.asarray(centre, dtype=np.float64), radius, height))
         depths.append(np.where(np.isfinite(t), t, np.nan).reshape(H, W))
     return DepthViews(np.stack(cameras), np.tile(K, (len(cameras), 1)), np.stack(depths).astype(np.float32),
                       np.ones(len(cameras), dtype=np.int64))

@@ -78,3 +78,46 @@ def test_support_without_a_segments_plane_is_the_shared_fitters_level_plane():
     wall = np.c_[np.full(2000, 0.9), rng.uniform(-0.5, 0.5, 2000), rng.uniform(0.0, 0.8, 2000)]
     sup = estimate_support(np.vstack([wall, obj]), np.r_[np.full(2000, -1), np.zeros(300, int)])
     assert sup.source.startswith("b1 xy plane") and np.allclose(sup.up, [0.0, 0.0, 1.0])
+
+
+def _fit_with_views(P, L, views, k=0):
+    sup = estimate_support(P, L)
+    geo = object_geometry(k, P[L == k], sup, background=P[L < 0])
+    return primitive_fit(geo, sup, views=views)
+
+
+def test_the_views_tell_a_can_whose_top_was_seen_in_part_from_an_open_cup():
+    """Points alone: a can whose top the cloud holds in part looks as open as a cup (no lid points over much
+    of the disc). The depth views decide: no camera saw through the can's top, and every camera looking down
+    saw into the cup."""
+    from _views_fixtures import render, ring_of_cameras
+
+    centre, d, h = (0.35, 0.0), 0.07, 0.10
+    T = table_points()
+    can = cylinder_points(centre, d, h)
+    can = can[~((can[:, 2] > h - 1e-6) & (can[:, 0] > centre[0]))]  # half of its top never made it into the cloud
+    P = np.concatenate([T, can])
+    L = np.r_[np.full(len(T), -1), np.zeros(len(can), int)].astype(np.int32)
+    cams = ring_of_cameras((centre[0], centre[1], 0.05), [-150, -90, -30, 30, 90, 150], distance=0.3, height=0.3)
+    assert _fit(P, L)[0] == "free-form"  # the points alone cannot tell
+    kind, fit = _fit_with_views(P, L, render(cams, [(centre, d / 2, h)]))
+    assert kind == "cylinder" and fit > 0.9
+
+    cup = _open_cup(centre, d, h)
+    P = np.concatenate([T, cup])
+    L = np.r_[np.full(len(T), -1), np.zeros(len(cup), int)].astype(np.int32)
+    assert _fit_with_views(P, L, render(cams, [], cups=[(centre, d / 2, h)]))[0] == "free-form"
+
+
+def test_a_top_no_view_saw_is_not_called_closed():
+    """A can whose top no camera saw (cameras below its top) stays free-form: a cup seen so would look the same."""
+    from _views_fixtures import render, ring_of_cameras
+
+    centre, d, h = (0.35, 0.0), 0.07, 0.16
+    T = table_points()
+    can = cylinder_points(centre, d, h)
+    can = can[can[:, 2] < h - 0.02]  # the cloud holds its lower side only
+    P = np.concatenate([T, can])
+    L = np.r_[np.full(len(T), -1), np.zeros(len(can), int)].astype(np.int32)
+    cams = ring_of_cameras((centre[0], centre[1], 0.02), [-120, -60, 0, 60, 120], distance=0.3, height=0.05)
+    assert _fit_with_views(P, L, render(cams, [(centre, d / 2, h)]))[0] == "free-form"

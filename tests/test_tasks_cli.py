@@ -277,3 +277,52 @@ def test_ctrl_c_while_a_task_writes_leaves_the_old_result_whole(fixture_dirs, tm
     assert sorted(p.name for p in out.iterdir()) == ["task.json"]
     assert json.loads((out / "task.json").read_text()) == {"earlier": True}
     assert [p.name for p in tmp_path.iterdir()] == ["o"]  # no .o.tmp-* staging folder
+
+
+def _two_objects_with_handovers(work, tmp_path, n_first: int):
+    """A copy of the fixture's work folder in which object 0 has ``n_first`` hand-overs and object 1 one."""
+    w = _copy_work(work, tmp_path)
+    path = w / "grasps" / "grasps.json"
+    g = json.loads(path.read_text())
+    h = g["objects"][0]["handover"]
+    g["objects"][0]["handover_alternatives"] = [dict(h, score=0.7 - 0.05 * (k + 1)) for k in range(n_first - 1)]
+    g["objects"][1]["handover"] = dict(h, score=0.3)
+    path.write_text(json.dumps(g))
+    return w
+
+
+def _previews_in_order(fixture_dirs, tmp_path, monkeypatch, object_1_plans: bool) -> list:
+    """The (object, candidate) previewed, in order, when every preview fails; plans are object 0's first
+    candidate's (the geometry is beside the point), and object 1's fail to plan unless ``object_1_plans``."""
+    from bimanual_app.tasks import _preview
+    from bimanual_app.tasks import _run as run_module
+    from bimanual_app.tasks._motion import PlanFailure
+
+    monkeypatch.setenv("BIJCR_APPROVAL_KEY", "test-key")
+    scene, work = fixture_dirs
+    w = _two_objects_with_handovers(work, tmp_path, 3)
+    real, first = run_module._plan_candidate, {}
+
+    def plan_candidate(opts, motion_o, c, k, *a):
+        if c.object_id == 1 and not object_1_plans:
+            raise PlanFailure("plan", "no path (test)")
+        first.setdefault("args", (opts, motion_o, c, 0, *a))
+        return real(*first["args"])
+
+    monkeypatch.setattr(run_module, "_plan_candidate", plan_candidate)
+    monkeypatch.setattr(_preview, "preview_plan", lambda *a, **kw: _preview.PreviewResult(False, "hold: dropped"))
+    out = tmp_path / "o"
+    assert _run(["handover", scene, "--work", w, "--out", out]) == 1
+    rec = json.loads((out / "task.json").read_text())
+    return [(p["object"], p["candidate_rank"]) for p in rec["previews_tried"]]
+
+
+def test_two_failed_previews_of_one_object_leave_the_last_to_the_next_object(fixture_dirs, tmp_path, monkeypatch):
+    """An object's previews fail together when its estimated body fails them: after two, the last of the
+    three previews goes to the next object rather than to a third grasp of the same object."""
+    assert _previews_in_order(fixture_dirs, tmp_path, monkeypatch, True) == [(0, 0), (0, 1), (1, 0)]
+
+
+def test_the_preview_left_by_an_object_that_plans_nothing_goes_back(fixture_dirs, tmp_path, monkeypatch):
+    """When the next object plans nothing, the preview it was left goes back to the first object's third."""
+    assert _previews_in_order(fixture_dirs, tmp_path, monkeypatch, False) == [(0, 0), (0, 1), (0, 2)]

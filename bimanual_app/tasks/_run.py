@@ -28,6 +28,10 @@ ARMS = ("primary", "secondary")
 MAX_FALLBACK_OBJECTS = 2  # without --object: objects tried after the best-scoring one cannot be planned
 MAX_CANDIDATES = 4  # grasp candidates (pairs, hand-overs) planned per object
 MAX_PREVIEWS = 3  # plans previewed before the task gives up: a failed preview moves on to the next candidate
+# previews one object gets while other objects are left to try: an object's previews fail together when its
+# estimated body is what fails them (a partly seen object, a neighbour's body in the fingers' way), so the
+# last preview goes to the next object rather than to a third grasp of the same doubtful one
+PREVIEWS_PER_OBJECT = 2
 OPEN_START = 0.0  # gripper width at the start when nothing is known (closed, as the Piper rests)
 
 
@@ -246,12 +250,26 @@ class _Search:
     q_start: dict  # arm -> (J,) start configuration
     width_start: dict  # arm -> gripper width at the start (m)
     motion: object = None  # the last TaskMotion built
-    tried: list = field(default_factory=list)  # (object id, first PlanFailure, candidates tried)
+    motions: dict = field(default_factory=dict)  # object id -> (TaskMotion, its surface points), None: no body
+    next_k: dict = field(default_factory=dict)  # object id -> its next candidate to plan
+    errors: dict = field(default_factory=dict)  # object id -> the PlanFailure of each candidate that failed
     attempts: list = field(default_factory=list)  # _Attempt: every candidate previewed
     chosen: _Attempt | None = None  # the first whose preview passed
     failed: _Attempt | None = None  # the first whose preview failed
     t_preview: float = 0.0
     start_problems: list = field(default_factory=list)  # the start configuration's collisions, if any
+
+    @property
+    def tried(self) -> list:
+        """(object id, its first PlanFailure, candidates that failed) of each object tried but not chosen."""
+        from ._motion import PlanFailure
+
+        chosen = None if self.chosen is None else self.chosen.object_id
+        return [(o, e[0] if e else PlanFailure("grasp", "no candidate"), len(e)) for o, e in self.errors.items()
+                if o != chosen]
+
+    def done(self) -> bool:
+        return self.chosen is not None or len(self.attempts) >= MAX_PREVIEWS
 
 
 def _plan_candidate(opts, motion_o, c, k: int, q_start, width_start, pts_o, up):
@@ -273,34 +291,53 @@ def _plan_candidate(opts, motion_o, c, k: int, q_start, width_start, pts_o, up):
     return plan, timeline
 
 
-def _try_object(opts, inputs, robot, o: int, cands, rec: dict, s: _Search) -> None:
-    """Plan and preview object ``o``'s candidates in order until one passes its preview (``s.chosen``) or
-    ``MAX_PREVIEWS`` previews were made; records what was tried in ``s``."""
+def _object_motion(opts, inputs, robot, o: int, rec: dict, s: _Search):
+    """``(TaskMotion, surface points (M, 3))`` of object ``o``, built once; None when it has no body or when,
+    as the first map built, it finds the start configuration blocked (``s.start_problems``)."""
     from ._motion import PlanFailure, TaskMotion
-    from ._preview import preview_plan, scene_bodies
+    from ._preview import scene_bodies
 
-    table, q_start = s.table, s.q_start
+    if o in s.motions:
+        return s.motions[o]
+    s.motions[o] = None
     _, shapes, warns = scene_bodies(inputs, [o])
     rec["warnings"] += warns
     if o not in shapes:
-        s.tried.append((o, PlanFailure("input", f"no collision body from its points ({'; '.join(warns)})"), 0))
-        return
+        s.errors[o] = [PlanFailure("input", f"no collision body from its points ({'; '.join(warns)})")]
+        return None
     sh = shapes[o]
-    pts_o = sh.surface_points_b1()
-    motion_o = TaskMotion(robot, inputs.T_b1_b2, inputs.points[~s.robot_pts], pts_o,
+    motion_o = TaskMotion(robot, inputs.T_b1_b2, inputs.points[~s.robot_pts], sh.surface_points_b1(),
                           inputs.points[inputs.labels == o], plan_time=opts.plan_time, speed=opts.speed,
-                          body=sh, up=table.normal)
+                          body=sh, up=s.table.normal)
     if s.motion is None:  # the first map built: the start must be free in it
-        s.start_problems = motion_o.problems(q_start)
+        s.start_problems = motion_o.problems(s.q_start)
         if s.start_problems:
-            return
+            return None
     s.motion = motion_o
-    errors = []
-    for k, c in enumerate([c for c in cands if c.object_id == o][:MAX_CANDIDATES]):
-        if len(s.attempts) >= MAX_PREVIEWS:
-            break
+    s.motions[o] = (motion_o, sh.surface_points_b1())
+    return s.motions[o]
+
+
+def _try_object(opts, inputs, robot, o: int, cands, rec: dict, s: _Search, previews: int = MAX_PREVIEWS) -> None:
+    """Plan and preview object ``o``'s candidates in order, from where an earlier call stopped, until one
+    passes its preview (``s.chosen``), ``previews`` more were previewed or ``MAX_PREVIEWS`` previews were made
+    in all; records what was tried in ``s``."""
+    from ._motion import PlanFailure
+    from ._preview import preview_plan
+
+    built = _object_motion(opts, inputs, robot, o, rec, s)
+    if built is None:
+        return
+    motion_o, pts_o = built
+    errors = s.errors.setdefault(o, [])
+    mine = [c for c in cands if c.object_id == o][:MAX_CANDIDATES]
+    budget = min(MAX_PREVIEWS, len(s.attempts) + previews)
+    while s.next_k.get(o, 0) < len(mine) and len(s.attempts) < budget:
+        k = s.next_k.get(o, 0)
+        s.next_k[o] = k + 1
         try:
-            plan, timeline = _plan_candidate(opts, motion_o, c, k, q_start, s.width_start, pts_o, table.normal)
+            plan, timeline = _plan_candidate(opts, motion_o, mine[k], k, s.q_start, s.width_start, pts_o,
+                                             s.table.normal)
         except PlanFailure as e:
             errors.append(e)
             _log(opts, f"candidate {k + 1} of object {o}: {e}")
@@ -316,15 +353,10 @@ def _try_object(opts, inputs, robot, o: int, cands, rec: dict, s: _Search) -> No
         s.attempts.append(att)
         if pv.success:
             s.chosen = att
-            break
+            return
         s.failed = s.failed or att
         errors.append(PlanFailure("preview", f"the physics preview failed: {pv.reason}"))
         _log(opts, f"candidate {k + 1} of object {o}: the physics preview failed: {pv.reason}")
-    if s.chosen is not None or len(s.attempts) >= MAX_PREVIEWS:
-        if s.chosen is None:
-            s.tried.append((o, errors[0], len(errors)))
-        return
-    s.tried.append((o, errors[0], len(errors)) if errors else (o, PlanFailure("grasp", "no candidate"), 0))
 
 
 def _plan_objects(opts, inputs, robot, cands, oid, q_start, width_start, rec: dict, timings: dict) -> _Search:
@@ -333,8 +365,8 @@ def _plan_objects(opts, inputs, robot, cands, oid, q_start, width_start, rec: di
 
     Each candidate that plans and validates is previewed on the reconstruction (never on the ground truth:
     that is only for judging); the first that passes is the task's plan. A failed preview moves on to the
-    next candidate, up to MAX_PREVIEWS previews; if none passes, the first failed one is reported (and
-    approved as 'fail')."""
+    next candidate, up to MAX_PREVIEWS previews, of which an object with other objects after it gets
+    PREVIEWS_PER_OBJECT; if none passes, the first failed one is reported (and approved as 'fail')."""
     from ._motion import BASE_RADIUS, START_PAD, arms_at_start_mask, robot_points_mask
     from ._preview import scene_bodies
 
@@ -354,12 +386,17 @@ def _plan_objects(opts, inputs, robot, cands, oid, q_start, width_start, rec: di
     if opts.object_id is None:
         order += [o for o in dict.fromkeys(c.object_id for c in cands) if o != oid][:MAX_FALLBACK_OBJECTS]
     s = _Search(table, robot_pts, q_start, width_start)
-    for o in order:
-        _try_object(opts, inputs, robot, o, cands, rec, s)
+    for i, o in enumerate(order):
+        _try_object(opts, inputs, robot, o, cands, rec, s,
+                    previews=PREVIEWS_PER_OBJECT if i + 1 < len(order) else MAX_PREVIEWS)
         if s.start_problems:
             return s
-        if s.chosen is not None or len(s.attempts) >= MAX_PREVIEWS:
+        if s.done():
             break
+    for o in order:  # previews left when the later objects planned none: the objects cut short get them
+        if s.done():
+            break
+        _try_object(opts, inputs, robot, o, cands, rec, s)
     timings["plan"] = time.perf_counter() - t_start - s.t_preview
     if s.attempts:
         timings["preview"] = s.t_preview
