@@ -158,9 +158,14 @@ def load_views(path: str | Path) -> DepthViews:
         disagreement = float(np.asarray(data.get("disagreement", 0.0), dtype=np.float64).reshape(()))
     except (TypeError, ValueError) as e:
         raise InputError(Problem(str(path), "disagreement", f"not one number: {e}", "re-run `bijcr calibrate`")) from None
-    try:
-        return DepthViews(data["T_b1_c"].astype(np.float64), data["K"].astype(np.float64),
-                          data["depth"].astype(np.float32), data["arm"].astype(np.int64), disagreement)
-    except ValueError as e:
-        field = "disagreement" if "disagreement" in str(e) else "depth"
-        raise InputError(Problem(str(path), field, str(e), "re-run `bijcr calibrate`")) from None
+    if not (np.isfinite(disagreement) and disagreement >= 0):
+        raise InputError(Problem(str(path), "disagreement", f"{disagreement} is not a distance >= 0 (m)",
+                                 "re-run `bijcr calibrate`"))
+    V = len(data["T_b1_c"]) if np.ndim(data["T_b1_c"]) else 0
+    for name, shape in (("T_b1_c", (V, 4, 4)), ("K", (V, 4)), ("depth", (V, None, None)), ("arm", (V,))):
+        try:
+            check_shape(name, data[name], shape)
+        except ValueError as e:
+            raise InputError(Problem(str(path), name, str(e), "re-run `bijcr calibrate`")) from None
+    return DepthViews(data["T_b1_c"].astype(np.float64), data["K"].astype(np.float64),
+                      data["depth"].astype(np.float32), data["arm"].astype(np.int64), disagreement)

@@ -55,6 +55,10 @@ def test_views_round_trip_and_bad_files_name_the_field(tmp_path):
     np.savez(tmp_path / "bad.npz", T_b1_c=views.T_b1_c, K=views.K, arm=views.arm)
     with pytest.raises(InputError, match="depth"):
         load_views(tmp_path / "bad.npz")
+    np.savez(tmp_path / "arm.npz", T_b1_c=views.T_b1_c, K=views.K, depth=views.depth, arm=views.arm[:1])
+    with pytest.raises(InputError) as e:  # the field is named by the check, not guessed from a message
+        load_views(tmp_path / "arm.npz")
+    assert e.value.problems[0].field == "arm"
     with pytest.raises(ValueError, match="K"):
         DepthViews(views.T_b1_c, views.K[:1], views.depth, views.arm)
 
