@@ -382,8 +382,10 @@ def primitive_fit(geo: ObjectGeometry, support: Support, tol: float = PRIMITIVE_
     ``("free-form", best fit)``.
 
     The box is the object's gravity-aligned box (``geo.T_b1_box``, ``geo.extent``); the cylinder is the
-    least-squares circle of the side points (radius ``CYL_RADIUS``) from the table to the top, and it must
-    also be closed at the top. With the capture's depth ``views`` (``bimanual_app.views.DepthViews``), the
+    least-squares circle of the side points (radius ``CYL_RADIUS``) from the table to the top; the segment's
+    box must lie within the circle's square grown by ``tol`` a side (the points that miss the surface are
+    not a neighbour's piece merged into the segment, which the simulated cylinder would leave out), and it
+    must also be closed at the top. With the capture's depth ``views`` (``bimanual_app.views.DepthViews``), the
     share of its top disc seen as a lid among the part seen at all (:func:`_top_closed`: a cup's opening is
     seen through); without them, the share of the disc's cells (``TOP_CELL``, 7 mm in from the rim) that
     hold a point at the top's height (a mug seen from above shows its rim and its inside, not a lid; nor does
@@ -419,7 +421,9 @@ def primitive_fit(geo: ObjectGeometry, support: Support, tol: float = PRIMITIVE_
             d = np.minimum(np.abs(rho - r), np.where(rho <= r + tol, np.abs(elev - top), np.inf))
             closed = (_top_cover(xy, elev, c, r, top) if views is None or not len(views)
                       else _top_closed(xy, elev, c, r, top, support, views))
-            cyl = min(float(np.mean(d < tol)), closed)
+            # the segment is the can: its box within the circle's square grown by the tolerance a side
+            whole = float(np.max(geo.extent[:2])) <= 2 * (r + tol)
+            cyl = min(float(np.mean(d < tol)), closed) if whole else 0.0
     if max(box, cyl) >= PRIMITIVE_MIN_FIT:
         return ("box", box) if box >= cyl else ("cylinder", cyl)
     return "free-form", max(box, cyl)

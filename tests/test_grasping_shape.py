@@ -121,3 +121,18 @@ def test_a_top_no_view_saw_is_not_called_closed():
     L = np.r_[np.full(len(T), -1), np.zeros(len(can), int)].astype(np.int32)
     cams = ring_of_cameras((centre[0], centre[1], 0.02), [-120, -60, 0, 60, 120], distance=0.3, height=0.05)
     assert _fit_with_views(P, L, render(cams, [(centre, d / 2, h)]))[0] == "free-form"
+
+
+def test_a_can_whose_segment_holds_a_piece_of_its_neighbour_is_not_a_cylinder():
+    """Most of the segment on the can's surface, and a 3 x 3 cm piece of a neighbour's top 3 cm beyond it (3 %
+    of the points): the simulated cylinder would leave that piece out, so the segment is free-form."""
+    centre, d, h = (0.35, 0.0), 0.07, 0.10
+    T = table_points()
+    can = cylinder_points(centre, d, h)
+    g = np.arange(-0.015, 0.015, 0.003)
+    X, Y = np.meshgrid(g, g)
+    piece = np.c_[X.ravel() + centre[0] + d / 2 + 0.03, Y.ravel(), np.full(X.size, 0.02)]
+    L = np.r_[np.full(len(T), -1), np.zeros(len(can), int)].astype(np.int32)
+    assert _fit(np.concatenate([T, can]), L)[0] == "cylinder"
+    L = np.r_[L, np.zeros(len(piece), int)].astype(np.int32)
+    assert _fit(np.concatenate([T, can, piece]), L)[0] == "free-form"
