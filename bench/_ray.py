@@ -24,6 +24,21 @@ WORKER_ENV = {"OMP_NUM_THREADS": "1"}
 OBJECT_STORE_BYTES = 200 * 1024 ** 2  # results are small dicts; do not reserve 30 % of the machine's memory
 
 
+def _in_checkout(root: str, fn: Callable[[Any], Any]) -> Callable[[Any], Any]:
+    """``fn`` run with the checkout ``root`` first on the worker's path (a closure: pickled by value).
+
+    Ray starts each task with the driver's working directory and script folder ahead of PYTHONPATH: run from
+    another folder, ``bench/grasping.py`` would stand in for the ``grasping`` package; run from another
+    checkout (a trial worktree's bench started from the main one), that checkout's code would run."""
+
+    def run(job):
+        if sys.path[:1] != [root]:
+            sys.path.insert(0, root)
+        return fn(job)
+
+    return run
+
+
 class SceneError(RuntimeError):
     """A job whose task raised or whose worker died (returned in its place with ``return_exceptions``)."""
 
@@ -79,7 +94,7 @@ def map_scenes(fn: Callable[[Any], Any], jobs: Sequence[Any], address: str | Non
     try:
         # max_calls=1: the worker exits after its task; max_retries=1: a worker killed from outside (out
         # of memory) is given one more try, a task that raises is not retried
-        remote = ray.remote(max_calls=1, num_cpus=1, max_retries=1)(fn)
+        remote = ray.remote(max_calls=1, num_cpus=1, max_retries=1)(_in_checkout(str(ROOT), fn))
         index = {remote.remote(job): i for i, job in enumerate(jobs)}
         results: list[Any] = [None] * len(jobs)
         pending = list(index)

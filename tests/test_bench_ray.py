@@ -27,3 +27,24 @@ def test_map_scenes_runs_each_job_in_a_fresh_worker_in_order():
     import ray
 
     assert not ray.is_initialized()  # the Ray it started is stopped again
+
+
+def _where_grasping_comes_from(_) -> tuple[str, str]:
+    import importlib.util
+    import sys
+
+    return sys.path[0], importlib.util.find_spec("grasping").origin
+
+
+def test_the_workers_import_this_checkout_whatever_the_working_directory(tmp_path, monkeypatch):
+    """Ray puts the driver's working directory and script folder first on a worker's path: from a folder
+    holding a ``grasping`` module of its own, the workers still import the checkout's package."""
+    from pathlib import Path
+
+    from bench._ray import ROOT
+
+    (tmp_path / "grasping.py").write_text("raise ImportError('the working directory shadowed the package')\n")
+    monkeypatch.chdir(tmp_path)
+    ((first, origin),) = map_scenes(_where_grasping_comes_from, [0], num_cpus=1)
+    assert first == str(ROOT)
+    assert Path(origin).resolve() == (ROOT / "grasping" / "__init__.py").resolve()
