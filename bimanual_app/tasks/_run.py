@@ -306,7 +306,8 @@ def _object_motion(opts, inputs, robot, o: int, rec: dict, s: _Search):
         s.errors[o] = [PlanFailure("input", f"no collision body from its points ({'; '.join(warns)})")]
         return None
     sh = shapes[o]
-    motion_o = TaskMotion(robot, inputs.T_b1_b2, inputs.points[~s.robot_pts], sh.surface_points_b1(),
+    pts_o = sh.surface_points_b1()
+    motion_o = TaskMotion(robot, inputs.T_b1_b2, inputs.points[~s.robot_pts], pts_o,
                           inputs.points[inputs.labels == o], plan_time=opts.plan_time, speed=opts.speed,
                           body=sh, up=s.table.normal)
     if s.motion is None:  # the first map built: the start must be free in it
@@ -314,7 +315,7 @@ def _object_motion(opts, inputs, robot, o: int, rec: dict, s: _Search):
         if s.start_problems:
             return None
     s.motion = motion_o
-    s.motions[o] = (motion_o, sh.surface_points_b1())
+    s.motions[o] = (motion_o, pts_o)
     return s.motions[o]
 
 
