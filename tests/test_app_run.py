@@ -61,6 +61,28 @@ def test_changed_input_reruns_the_stage(tmp_path):
     assert fingerprint([src], ["x"]) != before
 
 
+def test_other_code_reruns_the_stage(tmp_path, monkeypatch):
+    """A result made by other code (an update of the product, a local change) is not reused."""
+    from bimanual_app.app import pipeline
+
+    src = tmp_path / "in.txt"
+    src.write_text("a")
+    out = tmp_path / "out.txt"
+    runs = []
+
+    def stage():
+        return Stage("s", lambda log: (runs.append(1), out.write_text("done")), [src], [out])
+
+    run_stages([stage()], tmp_path / ".stages")
+    run_stages([stage()], tmp_path / ".stages")
+    assert len(runs) == 1  # same inputs, same code: reused
+    fp = pipeline.code_fingerprint()
+    assert len(fp) == 64 and int(fp, 16) >= 0
+    monkeypatch.setattr(pipeline, "code_fingerprint", lambda: "other code")
+    run_stages([stage()], tmp_path / ".stages")
+    assert len(runs) == 2
+
+
 def test_failing_stage_is_named_and_earlier_results_kept(scene, tmp_path):
     broken = tmp_path / "broken"
     shutil.copytree(scene, broken)

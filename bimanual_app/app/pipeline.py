@@ -2,8 +2,8 @@
 
 Each stage is a library call (``calibrate_stage``, ``segment_stage``, ``grasp_stage``, ``run_task``, ...:
 the very functions the ``bijcr`` sub-commands call) plus the list of files it reads and writes. A stage is
-skipped when its outputs exist and the fingerprint of its inputs and arguments matches the one recorded
-when it last succeeded (``DIR/.stages/NAME.json``). A failing stage stops the run, keeps everything the
+skipped when its outputs exist and the fingerprint of its inputs, its arguments and the product's code matches
+the one recorded when it last succeeded (``DIR/.stages/NAME.json``). A failing stage stops the run, keeps everything the
 earlier stages produced, and is recorded with its error so the report can say which stage failed and why.
 Ctrl-C (KeyboardInterrupt) is never a stage's failure: it stops the whole run at once, leaving the
 finished stages' results and records, and no record for the interrupted stage.
@@ -11,6 +11,7 @@ finished stages' results and records, and no record for the interrupted stage.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import sys
@@ -77,9 +78,30 @@ def _hash_path(h: hashlib._Hash, p: Path) -> None:
         h.update(b"<missing>")
 
 
-def fingerprint(inputs: list[Path], key: list[str]) -> str:
-    """SHA-256 over the inputs' contents and the stage's arguments."""
+CODE_PACKAGES = ("calibration", "segmentation", "grasping", "bimanual_app")  # the code the stages run
+
+
+@functools.lru_cache(maxsize=1)
+def code_fingerprint() -> str:
+    """SHA-256 over the Python sources of the product's packages (``CODE_PACKAGES``), as installed: a result
+    made by other code (an update, a local change) is not reused. About 300 files, read once per process."""
+    import importlib.util
+
     h = hashlib.sha256()
+    for name in CODE_PACKAGES:
+        spec = importlib.util.find_spec(name)
+        root = Path(spec.origin).parent if spec is not None and spec.origin else None
+        h.update(name.encode())
+        for f in sorted(root.rglob("*.py")) if root is not None else []:
+            h.update(str(f.relative_to(root)).encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()
+
+
+def fingerprint(inputs: list[Path], key: list[str]) -> str:
+    """SHA-256 over the inputs' contents, the stage's arguments and the code (:func:`code_fingerprint`)."""
+    h = hashlib.sha256()
+    h.update(code_fingerprint().encode())
     h.update(json.dumps(key).encode())
     for p in inputs:
         h.update(str(p).encode())

@@ -2,8 +2,8 @@
 
 Stages: reconstruct (when the scene has no reconstruction.npz) -> calibrate -> segment -> grasp ->
 joint-grasp task -> handover task -> report.html. Each stage's outputs land in a sub-folder of DIR and are
-reused on the next run while their inputs are unchanged. Each stage is the library call of its own command
-(bijcr calibrate, segment, grasp, task), in this process. A failed task is recorded and the run goes on;
+reused on the next run while their inputs, and the product's code, are unchanged. Each stage is the library
+call of its own command (bijcr calibrate, segment, grasp, task), in this process. A failed task is recorded and the run goes on;
 Ctrl-C stops the whole run at once (exit code 130), keeping the stages finished so far, with no report.
 """
 
