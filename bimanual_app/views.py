@@ -48,16 +48,27 @@ class DepthViews:
     disagreement: float = 0.0
 
     def __post_init__(self):
-        V = len(self.T_b1_c)
-        check_shape("T_b1_c", self.T_b1_c, (V, 4, 4))
-        check_shape("K", self.K, (V, 4))
-        check_shape("depth", self.depth, (V, None, None))
-        check_shape("arm", self.arm, (V,))
-        if not (np.isfinite(self.disagreement) and self.disagreement >= 0):
+        for name, shape in _field_shapes(len(self.T_b1_c)):
+            check_shape(name, getattr(self, name), shape)
+        if not _is_distance(self.disagreement):
             raise ValueError(f"disagreement must be a finite distance >= 0 (m), not {self.disagreement}")
 
     def __len__(self) -> int:
         return len(self.T_b1_c)
+
+    def tolerance(self, tol: float) -> float:
+        """The least distance (m) past a point at which these views prove it free: ``tol``, or their own
+        ``disagreement`` where larger (nearer than that, a view seeing past a point proves nothing)."""
+        return max(float(tol), float(self.disagreement))
+
+
+def _field_shapes(V: int) -> tuple:
+    """(field, shape) of the arrays of V views (``check_shape`` patterns)."""
+    return ("T_b1_c", (V, 4, 4)), ("K", (V, 4)), ("depth", (V, None, None)), ("arm", (V,))
+
+
+def _is_distance(x: float) -> bool:
+    return bool(np.isfinite(x) and x >= 0)
 
 
 def seen_free(points_b1: np.ndarray, views: DepthViews, tol: float = 0.01) -> np.ndarray:
@@ -158,11 +169,10 @@ def load_views(path: str | Path) -> DepthViews:
         disagreement = float(np.asarray(data.get("disagreement", 0.0), dtype=np.float64).reshape(()))
     except (TypeError, ValueError) as e:
         raise InputError(Problem(str(path), "disagreement", f"not one number: {e}", "re-run `bijcr calibrate`")) from None
-    if not (np.isfinite(disagreement) and disagreement >= 0):
+    if not _is_distance(disagreement):
         raise InputError(Problem(str(path), "disagreement", f"{disagreement} is not a distance >= 0 (m)",
                                  "re-run `bijcr calibrate`"))
-    V = len(data["T_b1_c"]) if np.ndim(data["T_b1_c"]) else 0
-    for name, shape in (("T_b1_c", (V, 4, 4)), ("K", (V, 4)), ("depth", (V, None, None)), ("arm", (V,))):
+    for name, shape in _field_shapes(len(data["T_b1_c"]) if np.ndim(data["T_b1_c"]) else 0):
         try:
             check_shape(name, data[name], shape)
         except ValueError as e:

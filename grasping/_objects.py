@@ -344,7 +344,7 @@ def _top_closed(xy: np.ndarray, elev: np.ndarray, c: np.ndarray, r: float, top: 
     e1, e2 = _perp_basis(support.up)
     X = cells[:, :1] * e1 + cells[:, 1:] * e2 + (support.height + top - 0.002) * support.up
     past = see_past(X, views)
-    tol = max(PRIMITIVE_TOL, float(views.disagreement))
+    tol = views.tolerance(PRIMITIVE_TOL)
     through = past > tol
     lid = (_top_lid_cells(xy, elev, cells, top) | (np.abs(past) <= tol)) & ~through
     seen = int(lid.sum() + through.sum())

@@ -55,4 +55,4 @@ def carved_unseen(obj_points: np.ndarray, other_points: np.ndarray, support: Sup
     G = G[(d_own > skin) & (d_own <= radius)]
     if len(O) and len(G):
         G = G[~np.isfinite(cKDTree(O).query(G, distance_upper_bound=skin)[0])]
-    return G[~seen_free(G, views, max(tol, views.disagreement))] if len(G) else G
+    return G[~seen_free(G, views, views.tolerance(tol))] if len(G) else G
