@@ -376,6 +376,30 @@ TOP_CELL = 0.01  # m: cells of a cylinder's top disc that must hold a point at t
 TOP_MIN_SEEN = 0.5  # share of the top disc the depth views must have seen (a lid, or through it) to judge it
 
 
+def _cylinder_fit(geo: ObjectGeometry, P: np.ndarray, N: np.ndarray, support: Support, tol: float, views) -> float:
+    """:func:`primitive_fit`'s upright cylinder for the seen points ``P`` (M, 3) with normals ``N`` (M, 3): the
+    share of them within ``tol`` of its side or top, capped by how closed its top is; 0 without a can's
+    circle, or when the segment's box reaches past the circle's square grown by ``tol`` a side."""
+    side = np.abs(N @ support.up) < 0.3
+    if side.sum() < 30:
+        return 0.0
+    e1, e2 = _perp_basis(support.up)
+    xy = np.stack([P @ e1, P @ e2], axis=1)
+    fit = fit_circle(xy[side])
+    if fit is None or not CYL_RADIUS[0] <= fit[1] <= CYL_RADIUS[1]:
+        return 0.0
+    c, r = fit
+    if float(np.max(geo.extent[:2])) > 2 * (r + tol):  # the segment is more than the can
+        return 0.0
+    rho = np.linalg.norm(xy - c, axis=1)
+    elev = support.elevation(P)
+    top = float(np.percentile(elev, 99.5))
+    d = np.minimum(np.abs(rho - r), np.where(rho <= r + tol, np.abs(elev - top), np.inf))
+    closed = (_top_cover(xy, elev, c, r, top) if views is None or not len(views)
+              else _top_closed(xy, elev, c, r, top, support, views))
+    return min(float(np.mean(d < tol)), closed)
+
+
 def primitive_fit(geo: ObjectGeometry, support: Support, tol: float = PRIMITIVE_TOL, views=None) -> tuple[str, float]:
     """Whether the object's seen points are a box or an upright cylinder: ``("box" | "cylinder", fit)`` when
     at least ``PRIMITIVE_MIN_FIT`` of them lie within ``tol`` of that primitive's surface, else
@@ -406,24 +430,7 @@ def primitive_fit(geo: ObjectGeometry, support: Support, tol: float = PRIMITIVE_
     inside = np.all(np.abs(q) <= h, axis=1)
     d_box = np.where(inside, np.min(h - np.abs(q), axis=1), np.linalg.norm(np.maximum(np.abs(q) - h, 0.0), axis=1))
     box = float(np.mean(d_box < tol))
-    cyl = 0.0
-    up = support.up
-    side = np.abs(N @ up) < 0.3
-    if side.sum() >= 30:
-        e1, e2 = _perp_basis(up)
-        xy = np.stack([P @ e1, P @ e2], axis=1)
-        fit = fit_circle(xy[side])
-        if fit is not None and CYL_RADIUS[0] <= fit[1] <= CYL_RADIUS[1]:
-            c, r = fit
-            rho = np.linalg.norm(xy - c, axis=1)
-            elev = support.elevation(P)
-            top = float(np.percentile(elev, 99.5))
-            d = np.minimum(np.abs(rho - r), np.where(rho <= r + tol, np.abs(elev - top), np.inf))
-            closed = (_top_cover(xy, elev, c, r, top) if views is None or not len(views)
-                      else _top_closed(xy, elev, c, r, top, support, views))
-            # the segment is the can: its box within the circle's square grown by the tolerance a side
-            whole = float(np.max(geo.extent[:2])) <= 2 * (r + tol)
-            cyl = min(float(np.mean(d < tol)), closed) if whole else 0.0
+    cyl = _cylinder_fit(geo, P, N, support, tol, views)
     if max(box, cyl) >= PRIMITIVE_MIN_FIT:
         return ("box", box) if box >= cyl else ("cylinder", cyl)
     return "free-form", max(box, cyl)
