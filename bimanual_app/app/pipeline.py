@@ -64,9 +64,10 @@ class StageRecord:
     outputs: list[str] = field(default_factory=list)
 
 
-def _hash_path(h: hashlib._Hash, p: Path) -> None:
+def _hash_path(h: hashlib._Hash, p: Path, pattern: str = "*") -> None:
+    """Feed ``h`` with a file's bytes, or a folder's files matching ``pattern`` (names and bytes, dot-files left out)."""
     if p.is_dir():
-        for q in sorted(p.rglob("*")):
+        for q in sorted(p.rglob(pattern)):
             if q.is_file() and not q.name.startswith("."):
                 h.update(str(q.relative_to(p)).encode())
                 _hash_path(h, q)
@@ -90,11 +91,9 @@ def code_fingerprint() -> str:
     h = hashlib.sha256()
     for name in CODE_PACKAGES:
         spec = importlib.util.find_spec(name)
-        root = Path(spec.origin).parent if spec is not None and spec.origin else None
         h.update(name.encode())
-        for f in sorted(root.rglob("*.py")) if root is not None else []:
-            h.update(str(f.relative_to(root)).encode())
-            h.update(f.read_bytes())
+        if spec is not None and spec.origin:
+            _hash_path(h, Path(spec.origin).parent, "*.py")
     return h.hexdigest()
 
 
