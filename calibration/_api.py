@@ -10,6 +10,7 @@ import numpy as np
 
 from bimanual_app.io_utils import InputError, Problem
 
+from ._correction import correction_limits
 from ._solve import DEFAULT_METHOD, CalibrationOptions, CalibrationResult, solve_bijcr
 
 
@@ -234,7 +235,7 @@ def _estimate_jointly(scene, result: CalibrationResult, options: CalibrationOpti
     start = JointState(result.T_e1_c1, result.T_e2_c2, result.scale, result.T_b1_b2, result.T_b1_w, np.zeros(len(rows)))
     noise = (np.radians(result.noise["rotation_deg"]), result.noise["translation_mm"] * 1e-3)
     pivot = np.asarray(result.noise.get("pivot_m", np.zeros(3)), dtype=np.float64)  # the pose-only noise model's
-    fit = estimate_jointly(views, arms, E, P, start, noise, progress, pivot)
+    fit = estimate_jointly(views, arms, E, P, start, noise, progress, pivot, correction_limits(result.uncertainty))
     report = _fit_report(scene, fit, rows, views)
     for v in fit.dropped_views:
         result.warnings.append(f"the point map of {report['depth_factors'][v]['image']} contradicts its own pose "

@@ -10,6 +10,7 @@ import numpy as np
 
 from . import _joint as jm
 from ._absolute import SIGMA_FLOOR_ROT, SIGMA_FLOOR_TRANS, normal_covariance
+from ._correction import beyond_correction, correction_limits
 from ._guard import held_out_cost, jackknife_covariance
 from ._pointmaps import StackedViews, find_pairs, map_residuals, view_camera_poses
 from ._terms import CostTerm, redundancy, solve_terms, stack, update_terms
@@ -35,10 +36,6 @@ DEPTH_TEST_P = 0.05
 #: own poses, contradicts its own pose (see contradicting_views)
 BAD_MATCH_RATIO = 0.25
 CONTRADICTION_RADIUS_M = 0.02
-# a result that moves an output further than this is not a correction of the pose-only solve
-MAX_ROT_CHANGE_DEG = 5.0
-MAX_TRANS_CHANGE_M = 0.05
-MAX_LOG_SCALE_CHANGE = 0.1
 
 
 @dataclass
@@ -242,7 +239,7 @@ def _fit_depth_only(st, views, pairs, arms, E, P, noise):
 
 
 def estimate_jointly(views: list, arms: np.ndarray, E: np.ndarray, P: np.ndarray, start, pose_noise: tuple,
-                     progress=None, pivot: np.ndarray | None = None) -> JointFit:
+                     progress=None, pivot: np.ndarray | None = None, limits: dict | None = None) -> JointFit:
     """The joint weighted estimate from the pose-only ``start`` (:class:`JointState`, kappa zero).
 
     Args:
@@ -252,16 +249,18 @@ def estimate_jointly(views: list, arms: np.ndarray, E: np.ndarray, P: np.ndarray
         progress: optional callable(str), one line per round.
         pivot: (3,) the pose-only solve's pivot (camera frame, m): the loop compares that point's positions,
             as the pose-only noise model does; None or zeros: the camera centres.
+        limits: how far the estimate may move each output from ``start`` and still be a correction of it
+            (``_correction.correction_limits`` of the pose-only solve's uncertainty); None: the fixed floors.
     """
     from threadpoolctl import threadpool_limits
 
     # its dense matrices are small (25 + V columns): BLAS threads cost more to start and synchronise than
     # they give (many times more on a busy machine)
     with threadpool_limits(limits=1, user_api="blas"):
-        return _estimate(views, arms, E, P, start, pose_noise, progress, pivot)
+        return _estimate(views, arms, E, P, start, pose_noise, progress, pivot, limits)
 
 
-def _estimate(views, arms, E, P, start, pose_noise, progress, pivot=None) -> JointFit:
+def _estimate(views, arms, E, P, start, pose_noise, progress, pivot=None, limits=None) -> JointFit:
     if min(int(np.sum(arms == 1)), int(np.sum(arms == 2))) < 2:
         return JointFit(start, False, f"needs 2 or more point maps per arm, has {int(np.sum(arms == 1))} / "
                                       f"{int(np.sum(arms == 2))}")
@@ -288,7 +287,7 @@ def _estimate(views, arms, E, P, start, pose_noise, progress, pivot=None) -> Joi
         again = fit_at(level, rounds)
         if again[0] is not None:
             st, pairs, noise = again
-    return _conclude(start, st, views, pairs, arms, E, P, noise, rounds, active)
+    return _conclude(start, st, views, pairs, arms, E, P, noise, rounds, active, limits)
 
 
 def _fit_rounds(views, arms, E, P, start, noise, samples, targets, active, rounds: list, progress):
@@ -331,7 +330,7 @@ def _depth_level(st, views, pairs, arms, E, P, noise) -> float:
     return float(min(noise["kappa"] * np.sqrt(ss / dof), jm.KAPPA_CAP))
 
 
-def _conclude(start, st, views, pairs, arms, E, P, noise, rounds, active) -> JointFit:
+def _conclude(start, st, views, pairs, arms, E, P, noise, rounds, active, limits=None) -> JointFit:
     """Checks, held-out test and covariance of the final estimate."""
     V = len(views)
     zero = np.zeros(19)
@@ -341,10 +340,9 @@ def _conclude(start, st, views, pairs, arms, E, P, noise, rounds, active) -> Joi
     fit = JointFit(start, False, noise=_noise_report(noise), residuals_before_m=r0, residuals_after_m=r1,
                    pairs=len(pairs), cross_arm=int(np.sum(arm[pairs.va] != arm[pairs.vb])), rounds=rounds,
                    dropped_views=[int(v) for v in np.flatnonzero(~active)])
-    rot, trans, dlog = _change(start, st)
-    if rot > MAX_ROT_CHANGE_DEG or trans > MAX_TRANS_CHANGE_M or abs(dlog) > MAX_LOG_SCALE_CHANGE:
-        fit.reason = (f"the joint estimate would move an output by {rot:.1f} deg / {trans * 1e3:.0f} mm / scale "
-                      f"{(np.exp(dlog) - 1) * 100:+.1f} %, more than a correction of the pose-only solve")
+    fit.reason = beyond_correction(_outputs(start), _outputs(st), limits or correction_limits(None),
+                                   "the joint estimate") or ""
+    if fit.reason:
         return fit
     if fit.cross_arm == 0:
         fit.reason = "no point pairs between the two arms' views: T_b1_b2 cannot be refined"
@@ -417,12 +415,6 @@ def _noise_report(noise: dict) -> dict:
             "pair_summary_noise": noise["pair"], "depth_factor_sigma": noise["kappa"]}
 
 
-def _change(a, b) -> tuple[float, float, float]:
-    """Largest rotation (deg) and translation (m) change of the hand-eyes and T_b1_b2 between two states, and
-    the log-scale change."""
-    from bimanual_app.transforms import rotation_angle_between
-
-    Ts = [(a.T_e1_c1, b.T_e1_c1), (a.T_e2_c2, b.T_e2_c2), (a.T_b1_b2, b.T_b1_b2)]
-    rot = max(float(np.degrees(rotation_angle_between(p[:3, :3], q[:3, :3]))) for p, q in Ts)
-    trans = max(float(np.linalg.norm(p[:3, 3] - q[:3, 3])) for p, q in Ts)
-    return rot, trans, float(np.log(b.scale / a.scale))
+def _outputs(st) -> dict:
+    """The outputs of a :class:`calibration._joint.JointState` that ``beyond_correction`` judges."""
+    return {"T_e1_c1": st.T_e1_c1, "T_e2_c2": st.T_e2_c2, "T_b1_b2": st.T_b1_b2, "scale": st.scale}
