@@ -11,6 +11,7 @@ Public API:
     write_outputs(out_dir, scene, result) -> {name: Path}   (calibration.json, scene_b1.ply, calibration.png, ros/)
     calibrate_stage(scene_dir, out_dir, method, options) -> CalibrationStage  (the stage of bijcr calibrate / run)
     analyse_capture({arm: T_b_e (N, 4, 4)}) -> [Finding]   the view-count / degeneracy checks (also bijcr check)
+    base_to_base_advice(uncertainty) -> str | None  the warning when T_b1_b2 is too loose for a hand-over
     CalibrationOptions, CalibrationResult, DegenerateCaptureError, METHODS, DEFAULT_METHOD
 CLI: ``bijcr calibrate SCENE --out DIR [--method absolute|paper|paper-norefine]`` (calibration.cli).
 """
@@ -24,7 +25,7 @@ from bimanual_app.lazy import lazy_exports
 _EXPORTS = {
     "calibrate": "_api", "scene_cloud": "_api", "write_outputs": "_api",
     "calibrate_stage": "_stage", "CalibrationStage": "_stage", "analyse_capture": "_degeneracy",
-    "metric_cloud": "_cloud",
+    "metric_cloud": "_cloud", "base_to_base_advice": "_advice",
     "solve_bijcr": "_solve", "solve_single_arm": "_solve", "CalibrationOptions": "_solve",
     "CalibrationResult": "_solve", "DegenerateCaptureError": "_solve", "METHODS": "_solve", "DEFAULT_METHOD": "_solve",
 }

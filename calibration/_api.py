@@ -10,6 +10,7 @@ import numpy as np
 
 from bimanual_app.io_utils import InputError, Problem
 
+from ._advice import base_to_base_advice
 from ._correction import correction_limits
 from ._solve import DEFAULT_METHOD, CalibrationOptions, CalibrationResult, solve_bijcr
 
@@ -82,6 +83,9 @@ def calibrate(scene, method: str = DEFAULT_METHOD, options: CalibrationOptions |
     res.info["registered"] = {arm.name: len(im) for arm, im in zip(scene.arms, images)}
     if (options or CalibrationOptions()).point_maps and rec.pts3d is not None:
         refine_point_maps(scene, res, options, progress)
+    advice = base_to_base_advice(res.uncertainty)  # of the final values: after the point maps
+    if advice:
+        res.warnings.append(advice)
     return res
 
 

@@ -173,7 +173,19 @@ def _new_record(opts, scene, inputs) -> dict:
                        "segments": str(inputs.paths.segments), "grasps": str(inputs.paths.grasps)},
             "options": {"truth_objects": opts.truth_objects, "execute": opts.execute,
                         "plan_time_s": opts.plan_time, "speed": opts.speed},
-            "warnings": list(inputs.warnings)}
+            "warnings": list(inputs.warnings) + _input_warnings(opts, inputs)}
+
+
+def _input_warnings(opts, inputs) -> list[str]:
+    """Warnings about what this task is given (each also printed): a hand-over from a calibration whose
+    second base is too loose for the grippers to meet (``calibration.base_to_base_advice``)."""
+    from calibration import base_to_base_advice
+
+    advice = base_to_base_advice(inputs.calibration.get("uncertainty")) if opts.task == "handover" else None
+    out = [f"{inputs.paths.calibration}: {advice}"] if advice else []
+    for w in out:
+        _log(opts, f"warning: {w}")
+    return out
 
 
 def _fail(opts, res: TaskResult, stage: str, reason: str) -> TaskResult:

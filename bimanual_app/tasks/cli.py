@@ -76,6 +76,8 @@ def run(args: argparse.Namespace) -> int:
     if res.object_id is not None:
         print(f"object {res.object_id}: {res.object_reason}")
     print(f"results: {res.out}")
+    for w in [] if args.quiet else res.record.get("warnings", []):
+        print(f"warning: {w}")
     if not res.success:
         print(f"bijcr task {args.task}: {res.reason}", file=sys.stderr)
     return 0 if res.success else 1
