@@ -5,6 +5,8 @@ A hand-over needs the two grippers to meet within a few millimetres, and the onl
 secondary's gripper relative to the primary's is ``T_b1_b2``. Over 336 studied task-bench scenes (4-12 views
 per arm; docs/tasks.md, "Known limits"), pipeline hand-overs held in the true world 239 of 289 times (83 %)
 where the calibration reported a ``T_b1_b2`` translation sigma under 5 mm, and 30 of 47 times (64 %) above it.
+On fresh scenes the split is weaker (docs/calibration.md): the warning states the uncertainty and its fix; it
+is not a prediction of the outcome.
 """
 
 from __future__ import annotations
@@ -28,7 +30,6 @@ def base_to_base_advice(uncertainty: Mapping | None) -> str | None:
     if sigma is None or not float(sigma) > HANDOVER_SIGMA_MM:
         return None
     told = "is not determined by these views" if not np.isfinite(float(sigma)) else f"is known to +-{float(sigma):.0f} mm"
-    return (f"the second base (T_b1_b2) {told} (1 sigma): a hand-over needs the grippers to meet within a few "
-            f"millimetres, and above {HANDOVER_SIGMA_MM:g} mm hand-overs miss far more often -> fix: capture more "
-            "views per arm (8 or more), turned 20-40 deg about different axes, with both arms' cameras seeing the "
-            "same objects")
+    return (f"the second base (T_b1_b2) {told} (1 sigma), more than the {HANDOVER_SIGMA_MM:g} mm a hand-over can "
+            "take: the grippers must meet within a few millimetres -> fix: capture more views per arm (8 or more), "
+            "turned 20-40 deg about different axes, with both arms' cameras seeing the same objects")
