@@ -7,8 +7,9 @@ handover: one arm picks a small object and brings it to the transfer pose, the o
 releases and retreats; the primary gives where it can, else the secondary (as grasps.json says).
 
 Missing earlier results are produced first, in-process: calibrate -> segment -> grasp (under --work).
-Writes OUT/task.json (outcome, chosen object and why, plans per phase, timings, approval record),
-OUT/preview.gif, key frames OUT/NN_<phase>.png, OUT/plan.npz and OUT/approval.json, all at once.
+Writes OUT/task.json (outcome, chosen object and why, plans per phase, timings, approval record,
+warnings), OUT/preview.gif, key frames OUT/NN_<phase>.png, OUT/plan.npz and OUT/approval.json, all at once;
+prints the warnings (e.g. a calibration whose second base is too loose for a hand-over).
 Exit code 0: the preview succeeded (and the hardware run, when asked); 1: it did not, or bad input.
 """
 
