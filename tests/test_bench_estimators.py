@@ -30,3 +30,15 @@ def test_targets_compare_the_joint_estimate_with_park_and_the_pose_only_solve():
     assert verdicts["base-to-base within 1 deg / 10 mm"] == "FAIL"
     assert verdicts["never worse: within 1.1x of pose-only (hand-eye, base-to-base)"] == "FAIL"  # 14 > 1.1 x 12 mm
     assert verdicts["uncertainty honest: RMS(error/sigma) over all outputs in [0.7, 1.4]"] == "FAIL"
+
+
+def test_the_report_gives_the_tail_and_the_counts_and_no_targets_without_fm_rows():
+    z1 = {"he_rot": [1.0, 1.0], "he_mm": [1.0, 1.0], "b2b_rot": 1.0, "b2b_mm": 1.0, "scale": 1.0}
+    rows = [{**_row("joint", 0.4, 3.0, b2b, 0.8, z1), "noise": "emulator", "seed": s}
+            for s, b2b in zip(range(10), [1.0] * 9 + [50.0])]
+    assert be.targets(rows) == []  # issue 21's targets are judged on fm maps only
+    text = be.report(rows, list(range(10)), "cmd", views=4, objects=6)
+    assert "(4 views per arm, 6 objects" in text
+    line = next(x for x in text.splitlines() if x.startswith("| emulator | joint |"))
+    assert "| 5.90 | 5.9 / 50.0 |" in line  # the mean, then the 90th percentile and the worst
+    assert "Targets" not in text
