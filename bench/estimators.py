@@ -88,19 +88,22 @@ def run_scene(job: tuple) -> list[dict]:
     return rows + [park_row(path, seed, noise)]
 
 
+def _values(entries, key) -> list[float]:
+    """Every value of ``key`` over ``entries`` (dicts), a per-arm pair counting as two values."""
+    return [v for e in entries for v in (e[key] if isinstance(e[key], list) else [e[key]])]
+
+
 def _mean(rows, key) -> float:
-    vals = [v for r in rows for v in (r[key] if isinstance(r[key], list) else [r[key]])]
-    return float(np.mean(vals))
+    return float(np.mean(_values(rows, key)))
 
 
 def _tail(rows, key) -> str:
-    vals = [v for r in rows for v in (r[key] if isinstance(r[key], list) else [r[key]])]
+    vals = _values(rows, key)
     return f"{np.percentile(vals, 90):.1f} / {np.max(vals):.1f}"
 
 
 def _rms_z(rows, key) -> float:
-    vals = [v for r in rows for v in (r["z"][key] if isinstance(r["z"][key], list) else [r["z"][key]])]
-    return float(np.sqrt(np.mean(np.square(vals))))
+    return float(np.sqrt(np.mean(np.square(_values([r["z"] for r in rows], key)))))
 
 
 def _seed_text(seeds: list[int]) -> str:

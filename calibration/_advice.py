@@ -3,7 +3,7 @@ too loosely for a hand-over, with what to change in the capture.
 
 A hand-over needs the two grippers to meet within a few millimetres, and the only thing that places the
 secondary's gripper relative to the primary's is ``T_b1_b2``. Over 336 studied task-bench scenes (4-12 views
-per arm; docs/tasks.md, "Known limits"), pipeline hand-overs held in the true world 239 of 289 times (83 %)
+per arm; docs/calibration.md, "A warning when the second base is too loose for a hand-over"), pipeline hand-overs held in the true world 239 of 289 times (83 %)
 where the calibration reported a ``T_b1_b2`` translation sigma under 5 mm, and 30 of 47 times (64 %) above it.
 On fresh scenes the split is weaker (docs/calibration.md): the warning states the uncertainty and its fix; it
 is not a prediction of the outcome.
