@@ -23,7 +23,7 @@ lint: setup
 # Every bench runs and prints all its rows (FAIL rows included; a bench exits 0 once it ran), and the
 # tables are always assembled; a bench that crashed is reported, and fails `make bench` at the end.
 bench: setup
-	@status=0; for b in calibration estimators reconstruction real segmentation motion grasping tasks pipeline; do \
+	@status=0; for b in calibration estimators reconstruction real segmentation segmentation_steps motion grasping tasks pipeline; do \
 	  echo "== bench/$$b.py"; nice $(PY) bench/$$b.py || { echo "== bench/$$b.py did not finish"; status=1; }; \
 	done; \
 	$(PY) tools/assemble_benchmarks.py; exit $$status

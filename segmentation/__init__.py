@@ -4,6 +4,7 @@ Public API:
     segment(points, colors=None, normals=None, mask_ids=None, params=None, bases=None, source="points",
             progress=False) -> SegmentResult
     SegmentParams: the tunables (with the reasons for their defaults).
+    CLEANUP_STEPS: the names of the clean-up steps after the contraction (``SegmentParams.skip``).
     SegmentResult: labels (N,) int32 (-1 table/background, 0..K-1 objects), table, objects, stats, timings.
     ObjectSummary: per object: points, centroid, table-aligned oriented box (center, rotation, extents).
     TablePlane: the fitted table.
@@ -26,7 +27,7 @@ from bimanual_app.lazy import lazy_exports
 _EXPORTS = {
     "read_cloud": "_io", "write_segments": "_io",
     "MaskViews": "_masks", "read_calibration": "_masks",
-    "SegmentParams": "_params",
+    "SegmentParams": "_params", "CLEANUP_STEPS": "_cleanup",
     "SegmentResult": "_pipeline", "segment": "_pipeline",
     "PlaneFit": "_plane", "fit_plane": "_plane", "uniform_sample": "_plane",
     "SegmentStage": "_stage", "segment_stage": "_stage",
@@ -36,7 +37,7 @@ _EXPORTS = {
 
 __all__ = [
     "segment", "SegmentParams", "SegmentResult", "ObjectSummary", "TablePlane", "MaskViews",
-    "fit_plane", "PlaneFit", "uniform_sample", "read_cloud", "write_segments", "read_calibration",
+    "CLEANUP_STEPS", "fit_plane", "PlaneFit", "uniform_sample", "read_cloud", "write_segments", "read_calibration",
     "segment_stage", "SegmentStage",
 ]
 

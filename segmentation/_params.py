@@ -41,6 +41,12 @@ class SegmentParams:
         min_object_voxels, min_object_height, min_object_size: smaller segments are dropped (noise,
             table texture, stray pixels): fewer voxels, lower top, shorter footprint (longer side); a
             segment must also rise 2.5 table-noise sigmas (at least 8 mm) above the table band.
+
+    Clean-up after the contraction:
+        skip: names of clean-up steps to leave out (``segmentation.CLEANUP_STEPS``: ``attach_parts``,
+            ``bunny_ears`` (one rule of attach_parts), ``dissolve_slivers``, ``split_by_tops``, ``level_tops``
+            (the ``_bump`` rule of split_by_tops), ``shed_walls``, ``carton_neighbours``); every step runs by
+            default. For measuring what each step does (``bench/segmentation.py --ablate``), not for users.
     """
 
     plane_threshold: float = 0.008
@@ -65,6 +71,7 @@ class SegmentParams:
     min_object_voxels: int = 25
     min_object_height: float = 0.012
     min_object_size: float = 0.02
+    skip: tuple[str, ...] = ()
 
     def with_(self, **kw) -> SegmentParams:
         """A copy with some fields changed (unknown names raise ``TypeError``)."""
@@ -73,3 +80,10 @@ class SegmentParams:
         if bad:
             raise TypeError(f"unknown segmentation parameter(s): {sorted(bad)}")
         return replace(self, **kw)
+
+    def __post_init__(self):
+        from ._cleanup import CLEANUP_STEPS
+
+        unknown = sorted(set(self.skip) - set(CLEANUP_STEPS))
+        if unknown:
+            raise ValueError(f"SegmentParams.skip: unknown clean-up step(s) {unknown}; known: {list(CLEANUP_STEPS)}")

@@ -180,7 +180,8 @@ def attach_parts(G: RegionGraph, patch_of_voxel: np.ndarray, xyz: np.ndarray, pa
                 elif (not reaches_table(st.bottom[S], st.top[S]) and st.width[S] < THIN
                       and st.top[S] <= st.top[N] + STACK_TOL / 2):
                     cands.append(N)  # hangs off N's side, thin, not above it (a handle)
-                elif (not reaches_table(st.bottom[S], st.top[S]) and st.width[S] < THIN
+                elif ("bunny_ears" not in params.skip
+                      and not reaches_table(st.bottom[S], st.top[S]) and st.width[S] < THIN
                       and st.bottom[S] >= st.bottom[N] + FLOAT_RISE and st.top[S] > st.top[N] + STACK_TOL / 2
                       and nS >= FLOAT_SHARE * len(big[N])):
                     cands.append(N)  # thin, held up beside N's upper part, rising above it (a bunny's ears)

@@ -10,22 +10,19 @@ import numpy as np
 
 from bimanual_app.io_utils import InputError, Problem
 
-from ._cartons import split_carton_neighbours
+from ._cleanup import Voxels, clean_up_regions
 from ._graph import RegionGraph, pair_geometry
 from ._orient import orient_patches
 from ._params import SegmentParams
-from ._parts import attach_parts, dissolve_slivers
+from ._parts import attach_parts
 from ._patches import make_patches, patch_adjacency
 from ._summary import ObjectSummary, summarize
 from ._table import TablePlane, check_metric, fit_table, on_table_mask
-from ._tops import split_by_tops
 from ._voxels import knn_edges, median_spacing, normals_and_curvature, voxelize
-from ._walls import shed_neighbour_walls
 
 DEFAULT_VOXEL = 0.005
 MIN_POINTS = 200
 BASE_FRINGE = 0.035  # regions within base_radius + this of a base are the base's plate, not objects
-SLIVER_WIDTH = 0.015  # regions narrower than this in x-y are valleys between objects, not objects
 
 
 @dataclass
@@ -248,17 +245,13 @@ def _regions(vox, vn, var, edges, mask_vox, table: TablePlane, p: SegmentParams,
     if _debug is not None:  # intermediate results for development and tests
         _debug.update(vox=vox, patches=patches, pairs=pairs, weight=weight, score=score,
                       contracted=G.labels()[patches.of_voxel], graph=G)
-    parts = attach_parts(G, patches.of_voxel, vox.xyz, p)
+    parts = 0 if "attach_parts" in p.skip else attach_parts(G, patches.of_voxel, vox.xyz, p)
     region = G.labels()[patches.of_voxel]  # (V,) region per voxel
     if _debug is not None:
         _debug["attached"] = region
-    region = dissolve_slivers(region, vox.xyz, SLIVER_WIDTH, p.min_object_voxels)
-    region, split = split_by_tops(region, vox.xyz, vn, edges, p)
-    region, shed = shed_neighbour_walls(region, vox.xyz, vn, edges, p, _min_top(table, p))
-    region, carved = split_carton_neighbours(region, vox.xyz, vn, edges, p)
+    stats.update(patches=len(patches), patch_edges=int(len(pairs)), merges=merges, attached=parts)
+    region = clean_up_regions(region, Voxels(vox.xyz, vn, edges, _min_top(table, p)), p, stats)
     T["graph"] = time.perf_counter() - t4
-    stats.update(patches=len(patches), patch_edges=int(len(pairs)), merges=merges, attached=parts, split_by_tops=split,
-                 walls_shed=shed, carton_neighbours=carved)
     return region
 
 

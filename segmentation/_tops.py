@@ -168,7 +168,7 @@ def split_by_tops(region: np.ndarray, xyz: np.ndarray, normals: np.ndarray, edge
         tops = _plateaus(idx, xyz, normals, edges)
         level = set()  # pairs of plateaus cut from one level top (_bump): apart though at one height
         bumps = set()
-        for i in range(len(tops)):
+        for i in range(len(tops) if "level_tops" not in params.skip else 0):
             small = _bump(xyz[tops[i], :2])
             if small is not None:
                 level.add((i, len(tops)))

@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-MAKE_BENCHES = ("calibration", "estimators", "reconstruction", "real", "segmentation", "motion", "grasping", "tasks",
-                "pipeline")  # `make bench`
+MAKE_BENCHES = ("calibration", "estimators", "reconstruction", "real", "segmentation", "segmentation_steps", "motion",
+                "grasping", "tasks", "pipeline")  # `make bench`
 BENCHES = [ROOT / "bench" / f"{b}.py" for b in MAKE_BENCHES]
 
 

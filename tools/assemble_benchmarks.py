@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-ORDER = ["calibration", "estimators", "reconstruction", "real", "segmentation", "motion", "grasping", "tasks", "pipeline"]
+ORDER = ["calibration", "estimators", "reconstruction", "real", "segmentation", "segmentation_steps", "motion", "grasping", "tasks", "pipeline"]
 
 
 DEFAULT_ROOT = Path(__file__).resolve().parents[1]
