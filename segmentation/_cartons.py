@@ -24,6 +24,16 @@ its own; smaller remains stay (a wall strip, noise). Four more tests keep a cart
 A region is a carton when its largest flat top plateau (``_tops._plateaus``) is at least ``CARTON_WIDTH``
 wide and fills its minimum-area rectangle (OpenCV) to ``FILL``: a disc fills pi/4 of its square, a duck's or
 a bunny's back is not flat.
+
+A can whose top is level with the carton's (within the plateaus' ``STEP``) is part of the carton's plateau,
+and its disc then stretches the plateau's rectangle over the can. The rectangle is therefore the carton's
+*core* (:func:`_core_rectangle`): slabs of the plateau across one of its axes that are occupied over less
+than ``NARROW`` of the plateau's typical width, at one end of that axis while the other end is as wide as the
+middle, are not the carton's top (a box's top is as wide at its ends as in its middle; a disc is narrow at
+both); they are cut off and the rectangle of the rest is taken. What was cut is outside the rectangle like any neighbour's piece, and it does
+not count as the top continuing (a top seen in fragments is another plateau, not a narrow end of this one),
+but a piece holding a cut end must show a side of its own (``SIDE_SHARE`` of its voxels facing sideways): a
+level can's top comes with its side, the end of a carton's top that the cameras saw only in part does not.
 """
 
 from __future__ import annotations
@@ -44,6 +54,9 @@ ABOVE_TOL = 0.02  # m: ... nor voxels this far above its top (a noisy top is a l
 PIECE_GAP = 0.015  # m: voxels of one piece lie within this of each other (3 voxels)
 WALL_DEG = 20.0  # a side voxel faces along an axis of the rectangle when its normal is within this of it ...
 WALL_SHARE = 0.7  # ... and a piece is the carton's own wall when this share of its side voxels does
+NARROW = 0.5  # an end slab of the top plateau occupied over less than this share of its median width is no carton's
+SLAB = 0.005  # m: the slabs' thickness along the axis (one voxel)
+SIDE_SHARE = 0.25  # a piece holding a cut end is a neighbour only with this share of side voxels (its own side)
 
 
 class _Top(NamedTuple):
@@ -53,7 +66,49 @@ class _Top(NamedTuple):
     R: np.ndarray  # (2, 2), columns: the rectangle's axes
     half: np.ndarray  # (2,) half sizes along them
     height: float  # the plateau's median height (m)
-    voxels: np.ndarray  # (P,) the plateau's voxel indices
+    voxels: np.ndarray  # (P,) the plateau's voxel indices (its core, without the narrow ends cut off)
+    cut: np.ndarray  # (C,) the voxels of the plateau's narrow ends, cut off (a level neighbour's top)
+
+
+def _narrow_ends(local: np.ndarray) -> np.ndarray:
+    """(P,) bool: the points ``local`` (P, 2) (in their rectangle's axes) in the end slabs, along either axis, whose
+    occupied width is under ``NARROW`` of the median slab's, at an end whose opposite end is not narrow (a box
+    with a neighbour's top against one side; a disc, narrow at both ends, keeps them)."""
+    cut = np.zeros(len(local), bool)
+    for ax in (0, 1):
+        slab = np.floor((local[:, ax] - local[:, ax].min()) / SLAB).astype(int)
+        n = int(slab.max()) + 1
+        lo, hi = np.full(n, np.inf), np.full(n, -np.inf)
+        np.minimum.at(lo, slab, local[:, 1 - ax])
+        np.maximum.at(hi, slab, local[:, 1 - ax])
+        width = np.where(np.isfinite(lo), hi - lo, 0.0)
+        narrow = width < NARROW * np.median(width[width > 0])
+        if narrow.all():
+            continue
+        k_lo, k_hi = int(np.argmin(narrow)), int(np.argmin(narrow[::-1]))  # narrow slabs at each end
+        if k_lo and not k_hi:
+            cut |= slab < k_lo
+        elif k_hi and not k_lo:
+            cut |= slab >= n - k_hi
+    return cut
+
+
+def _core_rectangle(xy: np.ndarray, rounds: int = 1) -> tuple[tuple, np.ndarray]:
+    """The minimum-area rectangle (OpenCV's ``((cx, cy), (w, h), angle)``) of the points ``xy`` (P, 2) after
+    cutting off their narrow ends (:func:`_narrow_ends`, repeated while it cuts), and (P,) bool: the points cut."""
+    import cv2
+
+    cut = np.zeros(len(xy), bool)
+    for _ in range(rounds):
+        rect = cv2.minAreaRect(xy[~cut].astype(np.float32))
+        a = np.deg2rad(rect[2])
+        R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        more = np.zeros(len(xy), bool)
+        more[~cut] = _narrow_ends((xy[~cut] - rect[0]) @ R)
+        if not more.any() or (~(cut | more)).sum() < 3:
+            break
+        cut |= more
+    return cv2.minAreaRect(xy[~cut].astype(np.float32)), cut
 
 
 def _top_rectangle(idx: np.ndarray, xyz: np.ndarray, normals: np.ndarray, edges: np.ndarray) -> _Top | None:
@@ -64,13 +119,13 @@ def _top_rectangle(idx: np.ndarray, xyz: np.ndarray, normals: np.ndarray, edges:
     if not tops:
         return None
     top = max(tops, key=len)
-    xy = xyz[top, :2].astype(np.float32)
-    (cx, cy), (w, h), angle = cv2.minAreaRect(xy)
+    ((cx, cy), (w, h), angle), cut = _core_rectangle(xyz[top, :2])
+    xy = xyz[top[~cut], :2].astype(np.float32)
     if min(w, h) < CARTON_WIDTH or cv2.contourArea(cv2.convexHull(xy)) < FILL * w * h:
         return None
     a = np.deg2rad(angle)
     R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
-    return _Top(np.array([cx, cy]), R, np.array([w, h]) / 2, float(np.median(xyz[top, 2])), top)
+    return _Top(np.array([cx, cy]), R, np.array([w, h]) / 2, float(np.median(xyz[top, 2])), top[~cut], top[cut])
 
 
 def _outside(xy: np.ndarray, top: _Top) -> np.ndarray:
@@ -107,6 +162,7 @@ def _continues_top(piece: np.ndarray, xyz: np.ndarray, normals: np.ndarray, top:
     from scipy.spatial import cKDTree
 
     flat = piece[(np.abs(normals[piece, 2]) >= UP_COS) & (np.abs(xyz[piece, 2] - top.height) < STEP)]
+    flat = flat[~np.isin(flat, top.cut)]  # a narrow end cut off the plateau is a level neighbour's top
     if not len(flat):
         return False
     d, _ = cKDTree(xyz[top.voxels]).query(xyz[flat], distance_upper_bound=PIECE_GAP)
@@ -115,6 +171,8 @@ def _continues_top(piece: np.ndarray, xyz: np.ndarray, normals: np.ndarray, top:
 
 def _separate(piece: np.ndarray, xyz: np.ndarray, normals: np.ndarray, top: _Top, params: SegmentParams) -> bool:
     """Whether a piece (voxel indices) outside a carton's top is an object of its own (module docstring)."""
+    if np.isin(piece, top.cut).any() and np.mean(np.abs(normals[piece, 2]) < 0.7) < SIDE_SHARE:
+        return False  # a narrow end of the top with no side of its own: the carton's top, partly seen
     return (object_sized(xyz[piece, :2], params) and np.mean(_outside(xyz[piece, :2], top) > 0) >= 0.5
             and xyz[piece, 2].max() >= top.height - ABOVE_TOL and not _carton_wall(normals[piece], top.R)
             and not _continues_top(piece, xyz, normals, top))

@@ -96,3 +96,26 @@ def test_a_copy_of_the_top_above_it_and_a_low_sheet_beside_it_stay():
     # a sheet of table 2 cm up beside the carton: not as high as the carton, so not a neighbour it hides
     (out, n_split), _ = _split(_carton(), _sheet(-0.1, 0.1, 0.105, 0.16, 0.02))
     assert n_split == 0 and np.all(out == 0)
+
+
+def test_a_can_whose_top_is_level_with_the_cartons_is_split_off():
+    """A can as tall as the carton, against its side: its top disc joins the carton's top plateau and
+    stretches the plateau's rectangle over it; the rectangle is the carton's core (the plateau's narrow end
+    cut off), so the can lies outside it and becomes a region of its own."""
+    carton = _carton()
+    can = _cylinder((0.15 + 0.03, 0.0), r=0.03, h=0.10)  # against the +x end, its top at the carton's height
+    keep = can[0][:, 0] > 0.15 + 0.002  # the half facing the carton is hidden
+    (out, n_split), (n_carton, _) = _split(carton, (can[0][keep], can[1][keep]))
+    assert n_split == 1
+    assert np.mean(out[:n_carton] == 0) > 0.98  # the carton keeps (nearly) all of its voxels
+    assert np.mean(out[n_carton:] != 0) > 0.8
+
+
+def test_a_cartons_top_seen_narrower_at_one_end_keeps_that_end():
+    """The far end of a carton's top seen only in a narrow strip (the rest of that end hidden): a narrow end of
+    the plateau, but with no side of its own it is the carton's top, not a neighbour."""
+    xyz, normals = _carton()
+    hidden = (xyz[:, 0] > 0.07) & (np.abs(xyz[:, 1]) > 0.03) & (xyz[:, 2] > 0.099)  # 8 cm of the top, all but a strip
+    hidden |= (xyz[:, 0] > 0.07) & (xyz[:, 2] < 0.099)  # and the walls under that end
+    (out, n_split), _ = _split((xyz[~hidden], normals[~hidden]))
+    assert n_split == 0 and np.all(out == 0)

@@ -35,8 +35,11 @@ def test_every_region_step_is_named_and_each_skip_leaves_its_work_undone():
     assert {name for name, _, _ in REGION_STEPS} <= set(CLEANUP_STEPS)
     for skip in ("split_by_tops", "level_tops"):  # the step, or only its level-tops rule
         stats = {}
-        out = clean_up_regions(region, v, SegmentParams(skip=(skip,)), stats)
+        out = clean_up_regions(region, v, SegmentParams(skip=(skip, "carton_neighbours")), stats)
         assert stats["split_by_tops"] == 0 and np.array_equal(out, region), skip
+        stats = {}  # the carton step, on its own, takes the can out of the carton's top too
+        out = clean_up_regions(region, v, SegmentParams(skip=(skip,)), stats)
+        assert stats["split_by_tops"] == 0 and stats["carton_neighbours"] == 1, skip
     stats = {}
     assert np.array_equal(clean_up_regions(region, v, SegmentParams(skip=CLEANUP_STEPS), stats), region)
     assert all(stats[key] == 0 for _, key, _ in REGION_STEPS)
