@@ -21,7 +21,7 @@ from bimanual_app.io_utils import Problem
 from bimanual_app.transforms import perpendicular_basis
 
 __all__ = ["Support", "ObjectGeometry", "estimate_support", "object_geometry", "check_graspable", "closed_geometry",
-           "complete_by_symmetry", "complete_walls", "complete_box", "hides_table", "fit_circle", "refine_circle", "primitive_fit"]
+           "complete_by_symmetry", "complete_walls", "hides_table", "fit_circle", "refine_circle", "primitive_fit"]
 
 
 @dataclass(frozen=True)
@@ -176,21 +176,6 @@ def object_geometry(obj_id: int, P: np.ndarray, support: Support, voxel: float =
 
 WALLS_MIN_SIDE = 0.08  # m: side walls are completed for objects at least this wide both ways (cartons) ...
 WALLS_MIN_COVER = 0.95  # ... whose points cover this share of their footprint rectangle (a 20 cm disc: 0.93)
-STANDS_TOL = 0.005  # m: a box whose bottom is this near the table stands on it
-
-
-def complete_box(geo: ObjectGeometry, support: Support, shape: str) -> ObjectGeometry:
-    """``geo`` with the unseen parts of its side walls filled (:func:`complete_walls`) when its seen points are a
-    box (``shape``, :func:`primitive_fit`) standing on the table; else ``geo`` unchanged.
-
-    :func:`object_geometry` completes the walls of cartons only (it cannot tell a box from a duck before the
-    primitive fit): a small box seen from above and one side has no points on the faces a gripper closes on,
-    and no antipodal pair can form, though the fit says where those faces are, as it does for a carton.
-    """
-    bottom = float(support.elevation(geo.centre)) - 0.5 * float(geo.extent[2])
-    if shape != "box" or bottom > STANDS_TOL:
-        return geo
-    return complete_walls(geo, support)
 
 
 def _footprint_cover(pu: np.ndarray, pv: np.ndarray, range_u: tuple, range_v: tuple, cell: float = 0.015) -> float:

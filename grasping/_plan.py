@@ -46,7 +46,6 @@ from ._objects import (
     Support,
     check_graspable,
     closed_geometry,
-    complete_box,
     estimate_support,
     object_geometry,
     primitive_fit,
@@ -225,7 +224,6 @@ def plan_object(k: int, cloud: SceneCloud, support: Support, gripper: GripperMod
                           background=cloud.points[cloud.labels < 0])
     plan = ObjectPlan(k, geo, "single")
     plan.shape, plan.shape_fit = primitive_fit(geo, support, views=cloud.views)
-    plan.geometry = geo = complete_box(geo, support, plan.shape)
     sp = params.sampler
     max_cw = sp.max_contact_width(gripper)
     plan.problems = check_graspable(geo, max(sp.min_width, gripper.min_width + 2 * sp.min_clearance), max_cw, source,

@@ -69,39 +69,3 @@ def test_push_pairs_are_found_on_a_carton_seen_only_from_above():
     op = plan.objects[0]
     assert op.mode == "joint" and op.joint, op.notes
     assert op.joint[0].kind == "push"
-
-
-def test_a_small_box_seen_from_above_and_one_end_gets_the_faces_a_gripper_closes_on():
-    """A 10 x 5 cm box seen on its top and one 5 cm end only: no point on its long faces, so no antipodal
-    pair across its 5 cm; the primitive fit says it is a box standing on the table, and ``complete_box`` fills
-    those faces (unseen). A free-form shape, and a box held above the table, are left as they are."""
-    from grasping import SamplerParams, load_gripper
-    from grasping._antipodal import _contact_pairs
-    from grasping._objects import complete_box, primitive_fit
-
-    small = Obj("box", (0.3, 0.0), (0.10, 0.05, 0.11), 0.0)
-    P, L = make_cloud([small], table_size=(0.8, 0.8))
-    seen = (L < 0) | (P[:, 2] > 0.11 - 0.002) | (P[:, 0] > 0.35 - 0.002)  # the top and the +x end
-    P, L = P[seen], L[seen]
-    sup = estimate_support(P, L)
-    geo = object_geometry(0, P[L == 0], sup, background=P[L < 0])
-    shape, fit = primitive_fit(geo, sup)
-    assert shape == "box" and fit > 0.9
-
-    def pairs(g):
-        sp = SamplerParams()
-        j, _ = _contact_pairs(g.points, g.normals, np.arange(len(g.points)), sp, sp.max_contact_width(load_gripper()))
-        return int((j >= 0).sum())
-
-    y_faces = lambda g: int(np.sum(np.abs(g.normals @ g.T_b1_box[:3, 1]) > 0.8))  # noqa: E731
-    assert y_faces(geo) == 0 and pairs(geo) == 0
-    done = complete_box(geo, sup, shape)
-    assert y_faces(done) > 100 and not done.observed[len(geo.points):].any()
-    assert np.array_equal(done.points[:len(geo.points)], geo.points)  # what was seen is kept
-    assert pairs(done) > 50
-    assert complete_box(geo, sup, "free-form") is geo
-    lifted = Obj("box", (0.3, 0.0), (0.10, 0.05, 0.03), 0.0)
-    Q, M = make_cloud([lifted], table_size=(0.8, 0.8))
-    Q[M == 0, 2] += 0.05  # a box held 5 cm above the table (the table seen under it)
-    held = object_geometry(0, Q[M == 0], estimate_support(Q, M), background=Q[M < 0])
-    assert complete_box(held, estimate_support(Q, M), "box") is held
