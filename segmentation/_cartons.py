@@ -30,8 +30,8 @@ and its disc then stretches the plateau's rectangle over the can. The rectangle 
 *core* (:func:`_core_rectangle`): slabs of the plateau across one of its axes that are occupied over less
 than ``NARROW`` of the plateau's typical width, at one end of that axis while the other end is as wide as the
 middle, are not the carton's top (a box's top is as wide at its ends as in its middle; a disc is narrow at
-both); they are cut off and the rectangle of the rest is taken. What was cut is outside the rectangle like any neighbour's piece, and it does
-not count as the top continuing (a top seen in fragments is another plateau, not a narrow end of this one),
+both); they are cut off and the rectangle of the rest is taken. What was cut is outside the rectangle like any
+neighbour's piece, and it does not count as the top continuing (a top seen in fragments is another plateau, not a narrow end of this one),
 but a piece holding a cut end must show a side of its own (``SIDE_SHARE`` of its voxels facing sideways): a
 level can's top comes with its side, the end of a carton's top that the cameras saw only in part does not.
 """
@@ -93,21 +93,17 @@ def _narrow_ends(local: np.ndarray) -> np.ndarray:
     return cut
 
 
-def _core_rectangle(xy: np.ndarray, rounds: int = 1) -> tuple[tuple, np.ndarray]:
-    """The minimum-area rectangle (OpenCV's ``((cx, cy), (w, h), angle)``) of the points ``xy`` (P, 2) after
-    cutting off their narrow ends (:func:`_narrow_ends`, repeated while it cuts), and (P,) bool: the points cut."""
+def _core_rectangle(xy: np.ndarray) -> tuple[tuple, np.ndarray]:
+    """The minimum-area rectangle (OpenCV's ``((cx, cy), (w, h), angle)``) of the points ``xy`` (P, 2) without their
+    narrow ends (:func:`_narrow_ends`, in the axes of the rectangle of them all), and (P,) bool: the points cut."""
     import cv2
 
-    cut = np.zeros(len(xy), bool)
-    for _ in range(rounds):
-        rect = cv2.minAreaRect(xy[~cut].astype(np.float32))
-        a = np.deg2rad(rect[2])
-        R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
-        more = np.zeros(len(xy), bool)
-        more[~cut] = _narrow_ends((xy[~cut] - rect[0]) @ R)
-        if not more.any() or (~(cut | more)).sum() < 3:
-            break
-        cut |= more
+    rect = cv2.minAreaRect(xy.astype(np.float32))
+    a = np.deg2rad(rect[2])
+    R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    cut = _narrow_ends((xy - rect[0]) @ R)
+    if (~cut).sum() < 3:
+        return rect, np.zeros(len(xy), bool)
     return cv2.minAreaRect(xy[~cut].astype(np.float32)), cut
 
 
