@@ -53,18 +53,20 @@ def log(msg: str) -> None:
 
 # ------------------------------------------------------------------------------------------ scenes
 
-def make_scenes(work: Path, n: int) -> list[Path]:
+def make_scene(work: Path, seed: int) -> Path:
+    """The bench's scene of ``seed`` under ``work`` (8 views per arm, 6 objects, half touching), made when missing."""
     from bimanual_app.synth import make_synthetic_scene
 
-    out = []
-    for seed in range(n):
-        path = work / f"scene{seed:02d}"
-        if not (path / "ground_truth.yaml").is_file():
-            log(f"generating {path} (seed {seed}, 8 views per arm, 6 objects, half touching)")
-            make_synthetic_scene(path, seed=seed, views=8, objects=6, touching=0.5, overwrite=True,
-                                 progress=False, preview=False)
-        out.append(path)
-    return out
+    path = work / f"scene{seed:02d}"
+    if not (path / "ground_truth.yaml").is_file():
+        log(f"generating {path} (seed {seed}, 8 views per arm, 6 objects, half touching)")
+        make_synthetic_scene(path, seed=seed, views=8, objects=6, touching=0.5, overwrite=True,
+                             progress=False, preview=False)
+    return path
+
+
+def make_scenes(work: Path, n: int) -> list[Path]:
+    return [make_scene(work, seed) for seed in range(n)]
 
 
 class Scene:

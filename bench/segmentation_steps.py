@@ -66,16 +66,12 @@ def true_labels(points: np.ndarray, scene: Path) -> np.ndarray:
 def run_scene(job: tuple[int, str]) -> dict:
     """One scene: make it (when missing), calibrate it, segment its cloud with every variant; the scores."""
     seed, work = job
-    from bench.segmentation import score
+    from bench.segmentation import make_scene, score
     from bimanual_app.scene import load_scene
-    from bimanual_app.synth import make_synthetic_scene
     from calibration import calibrate, scene_cloud
     from segmentation import SegmentParams, segment
 
-    path = Path(work) / f"scene{seed}"
-    if not (path / "ground_truth.yaml").is_file():
-        make_synthetic_scene(path, seed=seed, views=8, objects=6, touching=0.5, overwrite=True, progress=False,
-                             preview=False)
+    path = make_scene(Path(work), seed)
     sc = load_scene(path)
     result = calibrate(sc)
     points, colors, _ = scene_cloud(sc, result)
@@ -83,12 +79,9 @@ def run_scene(job: tuple[int, str]) -> dict:
     bases = np.array([np.zeros(3), result.T_b1_b2[:3, 3]])
     out = {"seed": seed, "rows": {}}
     for name, skip in variants():
-        t0 = time.perf_counter()
-        res = segment(points, colors, bases=bases, params=SegmentParams(skip=skip))
-        s = score(labels, res.labels)
+        s = score(labels, segment(points, colors, bases=bases, params=SegmentParams(skip=skip)).labels)
         out["rows"][name] = {k: s[k] for k in ("gt", "hidden", "pred", "tp", "pred_ok", "iou_sum", "over", "under")}
         out["rows"][name]["best"] = np.where(s["vis"], s["best"], np.nan).tolist()
-        out["rows"][name]["time"] = time.perf_counter() - t0
     return out
 
 
@@ -97,17 +90,18 @@ def table(results: list[dict]) -> list[str]:
     L = ["| left out | recall @ IoU 0.7 | precision | mean IoU | over-seg. | under-seg. | segments "
          f"| objects better / worse (IoU +-{CHANGED}) than with every step |",
          "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    from bench.segmentation import Tally
+
     for name, _ in variants():
-        n = {k: sum(r["rows"][name][k] for r in results) for k in ("gt", "pred", "tp", "pred_ok", "iou_sum", "over",
-                                                                   "under")}
-        better = worse = 0
+        tally, better, worse = Tally(), 0, 0
         for r in results:
+            tally.add(r["rows"][name])
             d = np.array(r["rows"][name]["best"]) - np.array(r["rows"]["none (all steps)"]["best"])
             better += int(np.sum(d > CHANGED))
             worse += int(np.sum(d < -CHANGED))
-        L.append(f"| {name} | {n['tp'] / max(n['gt'], 1):.3f} ({n['tp']}/{n['gt']}) | "
-                 f"{n['pred_ok'] / max(n['pred'], 1):.3f} | {n['iou_sum'] / max(n['gt'], 1):.3f} | {n['over']} | "
-                 f"{n['under']} | {n['pred']} | {better} / {worse} |")
+        t, n = tally.row(), tally.n
+        L.append(f"| {name} | {t['recall']:.3f} ({n['tp']}/{n['gt']}) | {t['precision']:.3f} | {t['miou']:.3f} | "
+                 f"{t['over']} | {t['under']} | {t['pred']} | {better} / {worse} |")
     return L
 
 

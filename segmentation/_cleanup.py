@@ -13,7 +13,7 @@ junctions alone is cleaned up afterwards by these steps (each module's docstring
 - ``carton_neighbours`` (``_cartons``): object-sized pieces outside a carton's top rectangle become regions.
 
 ``SegmentParams.skip`` leaves named steps (or rules) out, so that each one's effect can be measured on
-clouds it was not tuned on (``bench/segmentation.py --ablate``).
+clouds it was not tuned on (``bench/segmentation_steps.py``).
 """
 
 from __future__ import annotations
@@ -23,7 +23,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._cartons import split_carton_neighbours
 from ._params import SegmentParams
+from ._parts import dissolve_slivers
+from ._tops import split_by_tops
+from ._walls import shed_neighbour_walls
 
 __all__ = ["CLEANUP_STEPS", "Voxels", "clean_up_regions"]
 
@@ -46,27 +50,19 @@ class Voxels:
 
 
 def _slivers(region: np.ndarray, v: Voxels, p: SegmentParams) -> tuple[np.ndarray, int]:
-    from ._parts import dissolve_slivers
-
     out = dissolve_slivers(region, v.xyz, SLIVER_WIDTH, p.min_object_voxels)
     return out, int(np.count_nonzero(out != region))
 
 
 def _tops(region: np.ndarray, v: Voxels, p: SegmentParams) -> tuple[np.ndarray, int]:
-    from ._tops import split_by_tops
-
     return split_by_tops(region, v.xyz, v.normals, v.edges, p)
 
 
 def _walls(region: np.ndarray, v: Voxels, p: SegmentParams) -> tuple[np.ndarray, int]:
-    from ._walls import shed_neighbour_walls
-
     return shed_neighbour_walls(region, v.xyz, v.normals, v.edges, p, v.min_top)
 
 
 def _cartons(region: np.ndarray, v: Voxels, p: SegmentParams) -> tuple[np.ndarray, int]:
-    from ._cartons import split_carton_neighbours
-
     return split_carton_neighbours(region, v.xyz, v.normals, v.edges, p)
 
 
