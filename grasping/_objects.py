@@ -270,10 +270,10 @@ def _add_unseen(geo: ObjectGeometry, Q: np.ndarray, Nq: np.ndarray, gap: float) 
 
 CYL_RADIUS = (0.012, 0.06)  # m: radii of the cans, bottles and mugs completed as cylinders
 CYL_MAX_RMS = 0.06  # ... whose side points fit a circle within this share of its radius (RMS) ...
-# ... over an arc at least this wide (a narrower arc leaves the radius to the noise); seen over more, the
-# unseen arc is still completed: a can seen over 240 deg lacks a sagitta of 0.5 r on its far side, which the
-# half-turn completion about the points' box centre does not restore (docs/grasping.md, *Cylinders*)
-CYL_ARC = (np.deg2rad(90.0), 2 * np.pi)
+# ... over an arc this wide: seen over more, the box of the points already spans (nearly) the diameter and
+# the symmetric completion suffices; completing those anyway cost cans near the stroke limit their grasps
+# (the added arc a little outside the mirrored points, trusted less by the score)
+CYL_ARC = (np.deg2rad(90.0), np.deg2rad(210.0))
 CYL_MIN_RADIAL = 0.9  # ... with normals this well along the radius (mean |cos|; a box's corner: ~0.7)
 # A noisier arc (over CYL_MAX_RMS) is completed when its RMS is within this (m; the bench's pipeline clouds:
 # 1-3 mm), more of its side points lie on the circle than on the box's sides, and its top disc is closed

@@ -106,11 +106,6 @@ class PlanParams:
         Not solid for every grasp: wrist cameras on two arms leave much of the space around most objects
         unseen (their far sides, the air they hide), and solid, it took every grasp of most objects of the
         bench's captures (docs/grasping.md).
-    cylinder_min_clearance: the sampler's ``min_clearance`` (the least free space a side of the open fingers)
-        for an object the primitive fit calls a cylinder: its fitted circle places it (median centre error
-        1.1 mm, 90th percentile 3.3 mm on the task bench's pipeline clouds), where a free-form object's or a
-        box's extent comes from noisy extremes; with the default margin a 6.6-7 cm can, which the 72 mm
-        stroke takes, had no grasp (docs/grasping.md, *Cylinders seen from one side*).
     """
 
     sampler: SamplerParams = SamplerParams()
@@ -136,7 +131,6 @@ class PlanParams:
     retry_factor: int = 4
     unseen_radius: float = 0.0
     carve_radius: float = 0.03
-    cylinder_min_clearance: float = 0.0015
 
     def __post_init__(self):
         bad = [a for a in self.handover_givers if a not in ARM_NAMES]
@@ -230,8 +224,6 @@ def plan_object(k: int, cloud: SceneCloud, support: Support, gripper: GripperMod
                           background=cloud.points[cloud.labels < 0])
     plan = ObjectPlan(k, geo, "single")
     plan.shape, plan.shape_fit = primitive_fit(geo, support, views=cloud.views)
-    if plan.shape == "cylinder":
-        params = replace(params, sampler=replace(params.sampler, min_clearance=params.cylinder_min_clearance))
     sp = params.sampler
     max_cw = sp.max_contact_width(gripper)
     plan.problems = check_graspable(geo, max(sp.min_width, gripper.min_width + 2 * sp.min_clearance), max_cw, source,

@@ -39,41 +39,6 @@ def test_a_can_seen_from_one_side_is_completed_as_a_cylinder():
     assert np.all(np.einsum("ij,ij->i", n, added[:, :2] - CAN.centre_xy) > 0)  # outward
 
 
-def test_a_can_seen_over_more_than_half_its_round_is_completed_too():
-    """Seen over 240 degrees the points' box still lacks half a radius on the far side (the unseen arc's
-    sagitta); turned about that box's centre they would make a can 9 mm off centre and 1.9 cm too thin."""
-    P, L = _seen_from(*make_cloud([CAN], table_size=(0.8, 0.8)), towards=(-1.0, 0.0), half_angle_deg=120.0)
-    sup = estimate_support(P, L)
-    raw = object_geometry(0, P[L == 0], sup, background=P[L < 0], complete=False)
-    assert raw.extent[:2].min() < 0.062  # the far sagitta (0.5 r) unseen
-    geo = object_geometry(0, P[L == 0], sup, background=P[L < 0])
-    assert np.allclose(np.sort(geo.extent[:2]), 0.075, atol=0.004)
-    assert np.linalg.norm(geo.centre[:2] - CAN.centre_xy) < 0.004
-    added = geo.points[~geo.observed]
-    r = np.linalg.norm(added[:, :2] - CAN.centre_xy, axis=1)
-    assert len(added) > 100 and np.all(np.abs(r - 0.0375) < 0.004)
-    assert added[:, 0].min() > CAN.centre_xy[0]  # all on the unseen far side
-
-
-def test_a_can_near_the_stroke_keeps_a_thinner_margin_than_other_objects():
-    """A 6.8 cm can fits the 72 mm stroke with 2 mm a side: its fitted circle places it, so the sampler's
-    margin is ``cylinder_min_clearance``; with the margin of other objects (3 mm) it would have no grasp."""
-    from _grasp_fixtures import accept_all_arms
-
-    from grasping import PlanParams, plan_grasps, scene_cloud
-
-    can = Obj("cylinder", (0.35, 0.05), (0.068, 0.068, 0.12))
-    P, L = make_cloud([can], table_size=(0.8, 0.8))
-    fast = PlanParams(handover=False, retry_factor=1)
-    plan = plan_grasps(scene_cloud(P, L), arms=accept_all_arms(), params=fast)
-    op = plan.objects[0]
-    assert op.shape == "cylinder" and len(op.grasps) > 0
-    assert np.all(op.grasps.contact_width > 0.066)
-    wide = plan_grasps(scene_cloud(P, L), arms=accept_all_arms(), params=PlanParams(
-        handover=False, retry_factor=1, cylinder_min_clearance=0.003))
-    assert not wide.objects[0].grasps
-
-
 def test_a_box_seen_from_a_corner_is_not_made_a_cylinder():
     P, L = _seen_from(*make_cloud([BOX], table_size=(0.8, 0.8)), towards=(-1.0, -0.6))
     sup = estimate_support(P, L)
