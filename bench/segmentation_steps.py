@@ -87,11 +87,11 @@ def run_scene(job: tuple[int, str]) -> dict:
 
 def table(results: list[dict]) -> list[str]:
     """The markdown rows: per variant, totals over the scenes and the objects it changed against the full one."""
+    from bench.segmentation import Tally
+
     L = ["| left out | recall @ IoU 0.7 | precision | mean IoU | over-seg. | under-seg. | segments "
          f"| objects better / worse (IoU +-{CHANGED}) than with every step |",
          "| --- | --- | --- | --- | --- | --- | --- | --- |"]
-    from bench.segmentation import Tally
-
     for name, _ in variants():
         tally, better, worse = Tally(), 0, 0
         for r in results:

@@ -31,9 +31,10 @@ and its disc then stretches the plateau's rectangle over the can. The rectangle 
 than ``NARROW`` of the plateau's typical width, at one end of that axis while the other end is as wide as the
 middle, are not the carton's top (a box's top is as wide at its ends as in its middle; a disc is narrow at
 both); they are cut off and the rectangle of the rest is taken. What was cut is outside the rectangle like any
-neighbour's piece, and it does not count as the top continuing (a top seen in fragments is another plateau, not a narrow end of this one),
-but a piece holding a cut end must show a side of its own (``SIDE_SHARE`` of its voxels facing sideways): a
-level can's top comes with its side, the end of a carton's top that the cameras saw only in part does not.
+neighbour's piece, and it does not count as the top continuing (a top seen in fragments is another plateau,
+not a narrow end of this one), but a piece holding a cut end must show a side of its own (``SIDE_SHARE`` of
+its voxels facing sideways): a level can's top comes with its side, the end of a carton's top that the
+cameras saw only in part does not.
 """
 
 from __future__ import annotations
