@@ -68,18 +68,19 @@ def run_scene(job: tuple[int, str]) -> dict:
     seed, work = job
     from bench.segmentation import make_scene, score
     from bimanual_app.scene import load_scene
-    from calibration import calibrate, scene_cloud
+    from calibration import calibrate
+    from calibration._api import scene_cloud_and_views
     from segmentation import SegmentParams, segment
 
     path = make_scene(Path(work), seed)
     sc = load_scene(path)
     result = calibrate(sc)
-    points, colors, _ = scene_cloud(sc, result)
+    points, colors, _, _, unsure = scene_cloud_and_views(sc, result)  # the cloud and flags bijcr calibrate writes
     labels = true_labels(points, path)
     bases = np.array([np.zeros(3), result.T_b1_b2[:3, 3]])
     out = {"seed": seed, "rows": {}}
     for name, skip in variants():
-        s = score(labels, segment(points, colors, bases=bases, params=SegmentParams(skip=skip)).labels)
+        s = score(labels, segment(points, colors, bases=bases, params=SegmentParams(skip=skip), unsure=unsure).labels)
         out["rows"][name] = {k: s[k] for k in ("gt", "hidden", "pred", "tp", "pred_ok", "iou_sum", "over", "under")}
         out["rows"][name]["best"] = np.where(s["vis"], s["best"], np.nan).tolist()
     return out

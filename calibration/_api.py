@@ -342,7 +342,8 @@ ROBOT_RADIUS = 0.15  # m: points this close to a base's vertical axis are taken 
 
 
 def scene_cloud(scene, result: CalibrationResult, conf_threshold: float | None = None, include_dropped: bool = False,
-                robot_radius: float = ROBOT_RADIUS, wrist_rig: bool = True, free_space: bool = True):
+                robot_radius: float = ROBOT_RADIUS, wrist_rig: bool = True, free_space: bool = True,
+                confirm_unsure: bool = False):
     """Metric cloud in b1 of a calibrated scene: ``(points (K, 3), colors (K, 3) uint8 or None, info)``.
 
     Uses the point maps of the views the calibration used (a view dropped as badly registered has a point
@@ -350,33 +351,47 @@ def scene_cloud(scene, result: CalibrationResult, conf_threshold: float | None =
     removed with :func:`robot_self_mask` (``robot_radius=0`` keeps them). Returns ``(empty, None, info)``
     when the reconstruction has no point maps.
     """
-    points, colors, info, _ = scene_cloud_and_views(scene, result, conf_threshold, include_dropped, robot_radius,
-                                                    wrist_rig, free_space)
+    points, colors, info = scene_cloud_and_views(scene, result, conf_threshold, include_dropped, robot_radius,
+                                                 wrist_rig, free_space, confirm_unsure)[:3]
     return points, colors, info
 
 
 def scene_cloud_and_views(scene, result: CalibrationResult, conf_threshold: float | None = None,
                           include_dropped: bool = False, robot_radius: float = ROBOT_RADIUS, wrist_rig: bool = True,
-                          free_space: bool = True):
-    """:func:`scene_cloud`'s ``(points, colors, info)`` and the depth views those points come from
-    (:class:`bimanual_app.views.DepthViews`, the pixels the cloud keeps; None without point maps)."""
-    from ._cloud import metric_cloud
+                          free_space: bool = True, confirm_unsure: bool = False):
+    """:func:`scene_cloud`'s ``(points, colors, info)``, the depth views those points come from
+    (:class:`bimanual_app.views.DepthViews`, the pixels the cloud keeps; None without point maps) and which
+    points are unsure ((K,) bool: the points kept as below).
+
+    With ``confirm_unsure`` (opt-in, docs/calibration.md "Metric cloud"), a point under the confidence threshold
+    is kept where other views saw a surface at the same place (``_fusion.confirmed_points``; needs
+    ``free_space``): the steep sides of objects, which every view sees at a grazing angle and marks unsure."""
+    from ._cloud import kept_pixels, metric_cloud
 
     rec = scene.reconstruction
     if rec is None or rec.pts3d is None:
-        return np.zeros((0, 3)), None, {"points": 0, "note": "the reconstruction has no point maps (pts3d)"}, None
+        return (np.zeros((0, 3)), None, {"points": 0, "note": "the reconstruction has no point maps (pts3d)"}, None,
+                np.zeros(0, dtype=bool))
     rows, arms, E = _views_of(scene, result, include_dropped)
-    pts3d, T_w_c, info = _placed_maps(scene, result, rows, arms, E, wrist_rig, free_space)
+    pts3d, T_w_c, info, confirmed = _placed_maps(scene, result, rows, arms, E, wrist_rig, free_space)
     conf = None if rec.conf is None else rec.conf[rows]
-    points, colors, cinfo = metric_cloud(pts3d, result.T_b1_w, result.scale, conf,
-                                         None if rec.colors is None else rec.colors[rows], conf_threshold)
-    info = {**cinfo, **info}
-    views = _depth_views(pts3d, T_w_c, conf, cinfo["conf_threshold"], result, arms)
+    keep, thr = kept_pixels(pts3d, conf, conf_threshold)
+    unsure = np.zeros_like(keep)
+    if conf is not None and confirm_unsure:  # unsure points that other views saw there too
+        unsure = confirmed & ~keep & (conf > 0)
+        keep |= unsure
+        info["unsure_points_confirmed"] = int(unsure.sum())
+    pts3d = np.where(keep[..., None], pts3d, np.nan)
+    points, colors, cinfo = metric_cloud(pts3d, result.T_b1_w, result.scale, None,
+                                         None if rec.colors is None else rec.colors[rows])
+    unsure = unsure[keep]  # metric_cloud keeps the finite points, in the same order
+    info = {**cinfo, "conf_threshold": thr, **info}
+    views = _depth_views(pts3d, T_w_c, result, arms)
     if robot_radius > 0 and len(points):
         keep = ~robot_self_mask(points, [np.eye(4), result.T_b1_b2], robot_radius)
         info["robot_points_removed"] = int((~keep).sum())
         info["robot_filter_radius_m"] = robot_radius
-        points = points[keep]
+        points, unsure = points[keep], unsure[keep]
         colors = None if colors is None else colors[keep]
         info["points"] = int(len(points))
     if views is not None and len(points):
@@ -386,14 +401,15 @@ def scene_cloud_and_views(scene, result: CalibrationResult, conf_threshold: floa
 
         views = replace(views, disagreement=views_disagreement(points, views))
         info["views_disagreement_m"] = views.disagreement
-    return points, colors, info, views
+    return points, colors, info, views, unsure
 
 
 def _placed_maps(scene, result: CalibrationResult, rows: np.ndarray, arms: np.ndarray, E: np.ndarray,
-                 wrist_rig: bool, free_space: bool) -> tuple[np.ndarray, np.ndarray, dict]:
+                 wrist_rig: bool, free_space: bool) -> tuple[np.ndarray, np.ndarray, dict, np.ndarray]:
     """The point maps (V, H, W, 3) and camera poses (V, 4, 4) of reconstruction ``rows`` as the cloud uses
     them: placed by the kinematics when the point-map refinement was accepted, each wrist's own rig and the
-    points other views see through set to NaN; with what was done (info)."""
+    points other views see through set to NaN; with what was done (info) and the points other views confirm
+    ((V, H, W) bool, ``_fusion.confirmed_points``; none without ``free_space``)."""
     rec = scene.reconstruction
     pts3d = rec.pts3d[rows].copy()
     T_w_c = rec.T_w_c[rows]
@@ -412,31 +428,31 @@ def _placed_maps(scene, result: CalibrationResult, rows: np.ndarray, arms: np.nd
             ys, xs = np.nonzero(mask)
             pts3d[views[:, None], ys, xs] = np.nan
         info["wrist_rig_pixels"] = rig_pixels
+    confirmed = np.zeros(pts3d.shape[:3], dtype=bool)
     if free_space:
         seen_through = 0
         if len(rows) >= 3:
-            from ._fusion import free_space_outliers
+            from ._fusion import confirmed_points, free_space_outliers, view_votes
 
-            drop = free_space_outliers(pts3d, T_w_c)
+            votes = view_votes(pts3d, T_w_c)
+            drop = free_space_outliers(pts3d, T_w_c, votes=votes)
+            confirmed = confirmed_points(votes) & ~drop
             seen_through = int(drop.sum())
             pts3d[drop] = np.nan
         info["seen_through_removed"] = seen_through
-    return pts3d, T_w_c, info
+    return pts3d, T_w_c, info, confirmed
 
 
-def _depth_views(pts3d: np.ndarray, T_w_c: np.ndarray, conf: np.ndarray | None, conf_threshold: float | None,
-                 result: CalibrationResult, arms: np.ndarray):
+def _depth_views(pts3d: np.ndarray, T_w_c: np.ndarray, result: CalibrationResult, arms: np.ndarray):
     """The metric depth views in b1 of point maps ``pts3d`` (V, H, W, 3) with poses ``T_w_c`` (V, 4, 4) in w:
-    the pixels :func:`metric_cloud` keeps (finite; confidence above ``conf_threshold``), NaN elsewhere."""
+    the pixels the cloud keeps (finite), NaN elsewhere."""
     from bimanual_app.views import DepthViews
 
-    from ._cloud import kept_pixels
     from ._fusion import pointmap_intrinsics, points_in_cameras
 
     Pc = points_in_cameras(pts3d.astype(np.float64), T_w_c)
     ok = np.all(np.isfinite(Pc), axis=-1) & (np.nan_to_num(Pc[..., 2], nan=-1.0) > 0)
     K = np.stack([pointmap_intrinsics(Pc[v], ok[v]) for v in range(len(Pc))])
-    ok &= kept_pixels(pts3d, conf, conf_threshold)[0]
     depth = np.where(ok, Pc[..., 2] * result.scale, np.nan).astype(np.float32)
     S = np.tile(np.eye(4), (len(T_w_c), 1, 1))
     S[:, :3, :3] = T_w_c[:, :3, :3]
@@ -515,8 +531,11 @@ def _ee_link_name(scene) -> str | None:
 
 
 def write_outputs(out_dir: str | Path, scene, result: CalibrationResult, conf_threshold: float | None = None,
-                  figure: bool = True, log=None, figures=None) -> dict:
+                  figure: bool = True, log=None, figures=None, confirm_unsure: bool = False) -> dict:
     """Write calibration.json, scene_b1.ply, calibration.png and the ROS exports into ``out_dir``.
+
+    ``confirm_unsure``: keep the unsure points other views confirm, flagged in scene_b1.ply (vertex property
+    ``unsure``; :func:`scene_cloud_and_views`).
 
     ``figures``: a started :class:`~calibration._figures.FigureWorker` to draw the figures in (it is
     finished here); None: one is started here. Every file is complete when this returns.
@@ -536,7 +555,8 @@ def write_outputs(out_dir: str | Path, scene, result: CalibrationResult, conf_th
         if pm_figure:  # drawn while the cloud is built
             figures.draw("save_point_map_figure", out / "point_maps.png", *result.diagnostics["point_map_residuals_m"],
                          result.info.get("point_maps", {}), title=f"point-map refinement of '{scene.name}'")
-        pts, cols, cinfo, views = scene_cloud_and_views(scene, result, conf_threshold)
+        pts, cols, cinfo, views, unsure = scene_cloud_and_views(scene, result, conf_threshold,
+                                                                confirm_unsure=confirm_unsure)
         log(f"metric cloud: {cinfo['points']} points" + (f" (conf > {cinfo['conf_threshold']:.3g})"
                                                           if cinfo.get("conf_threshold") is not None else ""))
         if figure:  # drawn while the files below are written
@@ -554,7 +574,7 @@ def write_outputs(out_dir: str | Path, scene, result: CalibrationResult, conf_th
                                extra={"cloud": {k: v for k, v in cinfo.items()}, "ros_frames": frames})
         files["calibration.json"] = out / "calibration.json"
         if len(pts):
-            write_ply(out / "scene_b1.ply", pts, cols)
+            write_ply(out / "scene_b1.ply", pts, cols, unsure if confirm_unsure else None)
             files["scene_b1.ply"] = out / "scene_b1.ply"
         if views is not None:  # what the cameras saw through, for the grasp stage (bimanual_app/views.py)
             files[VIEWS_FILE] = write_views(out / VIEWS_FILE, views)

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from bimanual_app.transforms import xyz_quat_from_T
+from bimanual_app.transforms import check_shape, xyz_quat_from_T
 
 from ._files import atomic_file, write_json, write_text
 
@@ -27,8 +27,10 @@ def write_calibration_json(path: Path, result, scene_name: str, extra: dict | No
     write_json(path, data)
 
 
-def write_ply(path: Path, points: np.ndarray, colors: np.ndarray | None) -> None:
-    """Binary little-endian PLY of points (K, 3) (stored float32, metres) and optional colours (K, 3) uint8.
+def write_ply(path: Path, points: np.ndarray, colors: np.ndarray | None, unsure: np.ndarray | None = None) -> None:
+    """Binary little-endian PLY of points (K, 3) (stored float32, metres) and optional colours (K, 3) uint8;
+    with ``unsure`` (K,) bool, a vertex property ``unsure`` (uchar 0 / 1: a point its own map marked unsure
+    that other views confirmed; readers that do not know it skip it, ``segmentation.read_unsure`` reads it).
 
     Written with numpy rather than Open3D: ``import open3d`` pulls in its Plotly/Dash/IPython visualisation
     stack (about 1.2 s, measured), which alone is 40% of the 3-s budget of ``bijcr calibrate``; the format
@@ -41,11 +43,16 @@ def write_ply(path: Path, points: np.ndarray, colors: np.ndarray | None) -> None
     if colors is not None:
         fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
         props += ["property uchar red", "property uchar green", "property uchar blue"]
+    if unsure is not None:
+        fields.append(("unsure", "u1"))
+        props.append("property uchar unsure")
     rec = np.empty(n, dtype=fields)
     rec["x"], rec["y"], rec["z"] = points[:, 0], points[:, 1], points[:, 2]
     if colors is not None:
         colors = np.asarray(colors, dtype=np.uint8)
         rec["red"], rec["green"], rec["blue"] = colors[:, 0], colors[:, 1], colors[:, 2]
+    if unsure is not None:
+        rec["unsure"] = check_shape("unsure", np.asarray(unsure, dtype=bool), (n,))
     header = "\n".join(["ply", "format binary_little_endian 1.0", "comment Bi-JCR metric cloud in frame b1 (metres)",
                         f"element vertex {n}", *props, "end_header"]) + "\n"
     with atomic_file(path) as tmp:

@@ -25,10 +25,16 @@ import numpy as np
 from bimanual_app.transforms import check_shape
 from bimanual_app.views import filter3, pinhole_pixels
 
-__all__ = ["free_space_outliers", "pointmap_intrinsics"]
+__all__ = ["confirmed_points", "free_space_outliers", "pointmap_intrinsics", "view_votes"]
 
 TOL_REL = 0.05  # a point is "in front of" a surface when nearer than (1 - TOL_REL) times its depth
 MIN_VOTES = 2
+# A point its own map marks unsure (low confidence: a surface seen at a grazing angle, a depth edge) is kept
+# where this many other views saw a surface at the same place, within CONFIRM_TOL of depth, and none saw
+# through it: the multi-view consistency test of depth-map fusion (COLMAP's fusion keeps a pixel that
+# enough views agree on), which keeps the steep sides of objects that no view sees squarely
+MIN_CONFIRMING_VIEWS = 2
+CONFIRM_TOL = 0.01
 
 
 MAX_FIT_RMS_PX = 1.5  # a point map whose rays a pinhole fits worse than this (pixels) does not vote
@@ -70,20 +76,14 @@ def points_in_cameras(P_w: np.ndarray, T_w_c: np.ndarray) -> np.ndarray:
     return np.matmul((P_w - t[:, None, None, :]).reshape(V, -1, 3), R).reshape(P_w.shape)
 
 
-def free_space_outliers(pts3d_w: np.ndarray, T_w_c: np.ndarray, valid: np.ndarray | None = None,
-                        tol_rel: float = TOL_REL, min_votes: int = MIN_VOTES) -> np.ndarray:
-    """(V, H, W) bool: the points other views see through (see the module docstring).
+def view_votes(pts3d_w: np.ndarray, T_w_c: np.ndarray, valid: np.ndarray | None = None, tol_rel: float = TOL_REL,
+               confirm_tol: float = CONFIRM_TOL) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What the other views say about each point: ``(against, support, confirm, ok)``, (V, H, W) each.
 
-    Args:
-        pts3d_w: (V, H, W, 3) point maps in the reconstruction frame w.
-        T_w_c: (V, 4, 4) their camera poses in w.
-        valid: (V, H, W) bool, the points taking part (default: every finite point in front of its
-            camera). Only valid points vote and are judged.
-        tol_rel: relative depth tolerance (0.05: 5 cm at 1 m).
-        min_votes: the fewest votes against that can drop a point.
-
-    Views whose map a pinhole does not fit (``pointmap_intrinsics`` NaN) do not vote. When more than
-    ``MAX_DROP_FRACTION`` of the points would go, nothing is dropped.
+    ``against``: the views that see through the point (it lies nearer than ``1 - tol_rel`` times the surface
+    they see there); ``support``: those that see a surface there within ``tol_rel``; ``confirm``: those within
+    the tighter ``confirm_tol``; int32 counts. ``ok``: the points that took part (bool). Views whose map a
+    pinhole does not fit do not vote. Args as :func:`free_space_outliers`.
     """
     P = check_shape("pts3d", np.asarray(pts3d_w), (None, None, None, 3)).astype(np.float64)
     V, H, W = P.shape[:3]
@@ -98,15 +98,15 @@ def free_space_outliers(pts3d_w: np.ndarray, T_w_c: np.ndarray, valid: np.ndarra
     # point on an object's silhouette is compared with the object, not the background beside it
     Z = np.where(ok, Pc[..., 2], np.inf)
     z_near = filter3(Z, np.minimum)
-    # per view u, flat over its pixels: where u sees a surface, and the depth band of "on that surface"
+    z_far = filter3(np.where(ok, Z, -np.inf), np.maximum)
+    # per view u, flat over its pixels: where u sees a surface, and the depth bands of "on that surface"
     has = np.isfinite(z_near).reshape(V, -1)
-    lo = ((1.0 - tol_rel) * z_near).reshape(V, -1)
-    hi = ((1.0 + tol_rel) * filter3(np.where(ok, Z, -np.inf), np.maximum)).reshape(V, -1)
-    out = np.zeros((V, H, W), dtype=bool)
+    bands = [((1.0 - tol) * z_near).reshape(V, -1) for tol in (tol_rel, confirm_tol)]
+    tops = [((1.0 + tol) * z_far).reshape(V, -1) for tol in (tol_rel, confirm_tol)]
+    counts = np.zeros((3, V, H, W), dtype=np.int32)
     for v in range(V):
         X = P[v][ok[v]]  # a view's points at a time: arrays that stay in the cache
-        against = np.zeros(len(X), dtype=np.int32)
-        support = np.zeros(len(X), dtype=np.int32)
+        c = np.zeros((3, len(X)), dtype=np.int32)
         for u in range(V):
             if u == v or not np.all(np.isfinite(K[u])):
                 continue
@@ -114,11 +114,40 @@ def free_space_outliers(pts3d_w: np.ndarray, T_w_c: np.ndarray, valid: np.ndarra
             seen = pix >= 0
             pix[~seen] = 0
             seen &= has[u][pix]
-            against += seen & (z < lo[u][pix])
-            support += seen & (z >= lo[u][pix]) & (z <= hi[u][pix])
-        out[v][ok[v]] = (against >= min_votes) & (against > support)
+            c[0] += seen & (z < bands[0][u][pix])
+            c[1] += seen & (z >= bands[0][u][pix]) & (z <= tops[0][u][pix])
+            c[2] += seen & (z >= bands[1][u][pix]) & (z <= tops[1][u][pix])
+        counts[:, v][:, ok[v]] = c
+    return counts[0], counts[1], counts[2], ok
+
+
+def free_space_outliers(pts3d_w: np.ndarray, T_w_c: np.ndarray, valid: np.ndarray | None = None,
+                        tol_rel: float = TOL_REL, min_votes: int = MIN_VOTES, votes: tuple | None = None) -> np.ndarray:
+    """(V, H, W) bool: the points other views see through (see the module docstring).
+
+    Args:
+        pts3d_w: (V, H, W, 3) point maps in the reconstruction frame w.
+        T_w_c: (V, 4, 4) their camera poses in w.
+        valid: (V, H, W) bool, the points taking part (default: every finite point in front of its
+            camera). Only valid points vote and are judged.
+        tol_rel: relative depth tolerance (0.05: 5 cm at 1 m).
+        min_votes: the fewest votes against that can drop a point.
+        votes: :func:`view_votes`' result for these arguments, when already computed.
+
+    Views whose map a pinhole does not fit (``pointmap_intrinsics`` NaN) do not vote. When more than
+    ``MAX_DROP_FRACTION`` of the points would go, nothing is dropped.
+    """
+    against, support, _, ok = votes if votes is not None else view_votes(pts3d_w, T_w_c, valid, tol_rel)
+    out = ok & (against >= min_votes) & (against > support)
     if out.sum() > MAX_DROP_FRACTION * max(int(ok.sum()), 1):
         # the views disagree wholesale (a reconstruction whose poses and maps do not fit each other):
         # that is for the calibration's own checks to report, not for this filter to hide
         return np.zeros_like(out)
     return out
+
+
+def confirmed_points(votes: tuple, min_views: int = MIN_CONFIRMING_VIEWS) -> np.ndarray:
+    """(V, H, W) bool: the points at least ``min_views`` other views saw on their own surface (within
+    :func:`view_votes`' ``confirm_tol``) and none saw through (``votes``: :func:`view_votes`' result)."""
+    against, _, confirm, ok = votes
+    return ok & (confirm >= min_views) & (against == 0)

@@ -41,12 +41,13 @@ def require_torch(method: str) -> None:
 
 def calibrate_stage(scene: str | Path, out: str | Path, method: str = "absolute", options=None,
                     conf_threshold: float | None = None, figure: bool = True,
-                    log: Callable[[str], None] | None = None) -> CalibrationStage:
+                    log: Callable[[str], None] | None = None, confirm_unsure: bool = False) -> CalibrationStage:
     """Calibrate the scene folder ``scene`` and write calibration.json, scene_b1.ply, the figures and the
     ROS exports into ``out``.
 
     The output folder is checked before anything is read or computed. ``options``: CalibrationOptions
-    (default: the defaults); ``log``: progress lines. Raises InputError (a bad scene or output folder, the
+    (default: the defaults); ``log``: progress lines; ``confirm_unsure``: keep the unsure points other views
+    confirm, flagged in the cloud (:func:`~calibration._api.write_outputs`). Raises InputError (a bad scene or output folder, the
     paper method without torch) or DegenerateCaptureError (views that do not determine the calibration).
     """
     from threadpoolctl import threadpool_limits
@@ -72,5 +73,5 @@ def calibrate_stage(scene: str | Path, out: str | Path, method: str = "absolute"
         log(f"joint solve in {result.info['time_total_s']:.3f} s"
             + (f", point-map refinement in {pm['time_s']:.1f} s" if pm else ""))
         files = write_outputs(out, sc, result, conf_threshold=conf_threshold, figure=figure, log=log,
-                              figures=figures)
+                              figures=figures, confirm_unsure=confirm_unsure)
     return CalibrationStage(sc, result, out, files)

@@ -43,6 +43,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="solve a degenerate capture anyway (with warnings) instead of stopping")
     p.add_argument("--conf-threshold", type=float, default=None,
                    help="keep point-map points with conf above this (default: 0.2 x median confidence)")
+    p.add_argument("--confirm-unsure", action="store_true",
+                   help="also keep the points under the threshold that other views confirm (the steep sides of "
+                        "objects), flagged 'unsure' in scene_b1.ply; off by default (docs/calibration.md, Metric cloud)")
     p.add_argument("--no-point-maps", action="store_true",
                    help="skip the point-map refinement: keep the joint solve's values and build the cloud from "
                         "the reconstruction's camera poses (the paper's cloud)")
@@ -155,7 +158,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"bijcr calibrate: {e}", file=sys.stderr)
         return 2
     st = calibrate_stage(args.scene, args.out, method=args.method, options=opts,
-                         conf_threshold=args.conf_threshold, figure=not args.no_figure, log=log)
+                         conf_threshold=args.conf_threshold, figure=not args.no_figure, log=log,
+                         confirm_unsure=args.confirm_unsure)
     if args.quiet:
         print(args.out)
         return 0

@@ -58,6 +58,44 @@ def read_cloud(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.ndar
     return pts, col, nrm
 
 
+_PLY_TYPES = {"char": "i1", "uchar": "u1", "short": "<i2", "ushort": "<u2", "int": "<i4", "uint": "<u4",
+              "float": "<f4", "double": "<f8", "int8": "i1", "uint8": "u1", "int16": "<i2", "uint16": "<u2",
+              "int32": "<i4", "uint32": "<u4", "float32": "<f4", "float64": "<f8"}
+
+
+def read_unsure(path: str | Path, n: int | None = None) -> np.ndarray | None:
+    """(N,) bool: the points of a binary little-endian PLY that its ``unsure`` vertex property marks (written
+    by ``bijcr calibrate``: points their own map marked unsure that other views confirmed); None for other
+    files, or when the property is missing or the file has not ``n`` vertices.
+
+    Read with numpy: Open3D's point-cloud reader drops properties it does not know."""
+    path = Path(path)
+    if path.suffix.lower() != ".ply":
+        return None
+    with open(path, "rb") as f:
+        if f.readline().strip() != b"ply":
+            return None
+        fields, count, binary = [], None, False
+        for raw in iter(f.readline, b""):
+            words = raw.decode("ascii", "replace").split()
+            if words[:1] == ["end_header"]:
+                break
+            if words[:2] == ["format", "binary_little_endian"]:
+                binary = True
+            elif words[:2] == ["element", "vertex"]:
+                count = int(words[2])
+            elif words[:1] == ["element"] and count is not None:
+                return None  # other elements after the vertices: not a plain cloud
+            elif words[:1] == ["property"] and len(words) == 3 and words[1] in _PLY_TYPES:
+                fields.append((words[2], _PLY_TYPES[words[1]]))
+            elif words[:1] == ["property"]:
+                return None  # a list property: not a plain cloud
+        if not binary or count is None or "unsure" not in dict(fields) or (n is not None and count != n):
+            return None
+        rec = np.frombuffer(f.read(count * np.dtype(fields).itemsize), dtype=fields, count=count)
+    return rec["unsure"].astype(bool)
+
+
 def summary_dict(result: SegmentResult, source: str = "") -> dict:
     """The JSON-able summary of a segmentation (what segments.json holds)."""
     t = result.table

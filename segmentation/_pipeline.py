@@ -261,8 +261,37 @@ def _min_top(table: TablePlane, p: SegmentParams) -> float:
     return max(p.min_object_height, table.min_height + max(0.008, 2.5 * table.sigma))
 
 
+def _with_unsure(points, colors, normals, mask_ids, p: SegmentParams, bases, source: str, progress: bool,
+                 unsure) -> SegmentResult:
+    """:func:`segment` of the sure points, the unsure ones (``unsure`` (N,) bool) then joined to the segments
+    they connect to (:func:`_unsure.join_unsure`), summaries over all points."""
+    from ._unsure import join_unsure
+
+    pts = np.asarray(points, dtype=np.float64)
+    unsure = np.asarray(unsure, dtype=bool)
+    if unsure.shape != (len(pts),):
+        raise InputError(Problem(source, "unsure", f"{unsure.shape} flags for {len(pts)} points",
+                                 "give one flag per point (or none)"))
+    sure = ~unsure
+
+    def part(a):  # per-point arrays follow the sure points; a mask-view object answers for any point
+        return a[sure] if isinstance(a, np.ndarray) and len(a) == len(pts) else a
+
+    res = segment(pts[sure], part(colors), part(normals), part(mask_ids), p, bases, source, progress)
+    labels = np.full(len(pts), -1, np.int32)
+    labels[sure] = res.labels
+    pt = res.table.to_table(pts)
+    cand = np.zeros(len(pts), bool)
+    cand[_candidates(pt, res.table, p, bases)] = True
+    labels = join_unsure(pts, labels, unsure, np.where(cand, pt[:, 2], -1.0), res.table.min_height)
+    stats = {**res.stats, "points": len(pts), "unsure_points": int(unsure.sum()),
+             "unsure_joined": int((labels[unsure] >= 0).sum())}
+    return SegmentResult(labels, res.table, summarize(pts, labels, res.table), res.voxel, stats, res.timings)
+
+
 def segment(points, colors=None, normals=None, mask_ids=None, params: SegmentParams | None = None,
-            bases=None, source: str = "points", progress: bool = False, _debug: dict | None = None) -> SegmentResult:
+            bases=None, source: str = "points", progress: bool = False, _debug: dict | None = None,
+            unsure=None) -> SegmentResult:
     """Segment a metric table-top cloud in b1 into the table and objects.
 
     Args:
@@ -278,12 +307,17 @@ def segment(points, colors=None, normals=None, mask_ids=None, params: SegmentPar
             ``params.base_radius`` of their vertical axes are background (a base is not an object).
         source: the input's name for error messages (the file).
         progress: log stages to stderr.
+        unsure: (N,) bool or None: points that may join a segment but never link two (the cloud's unsure points,
+            ``read_unsure``): the graph runs on the others, and each of these takes the segment it connects to
+            (``_unsure.join_unsure``).
 
     Returns:
         :class:`SegmentResult`. Raises :class:`InputError` for empty, non-finite, non-metric clouds and
         clouds without a table plane.
     """
     p = params or SegmentParams()
+    if unsure is not None and np.any(unsure):
+        return _with_unsure(points, colors, normals, mask_ids, p, bases, source, progress, unsure)
     T = {}
     t0 = time.perf_counter()
     pts, col, nrm, mask_ids = _check_inputs(points, colors, normals, mask_ids, source)

@@ -13,7 +13,7 @@ import numpy as np
 
 from bimanual_app.io_utils import InputError, Problem, check_output_dir
 
-from ._io import read_cloud, write_segments
+from ._io import read_cloud, read_unsure, write_segments
 from ._masks import MaskViews, read_calibration
 from ._params import SegmentParams
 from ._pipeline import segment
@@ -45,6 +45,7 @@ def segment_stage(cloud: str | Path, out: str | Path, calibration: str | Path | 
     out = check_output_dir(out)
     cloud = Path(cloud)
     points, colors, normals = read_cloud(cloud)
+    unsure = read_unsure(cloud, len(points))  # bijcr calibrate's unsure points: they join segments, never link two
     calib_path = Path(calibration) if calibration else cloud.parent / "calibration.json"
     calib = read_calibration(calib_path) if (calibration or calib_path.is_file()) else None
     bases = None
@@ -59,6 +60,6 @@ def segment_stage(cloud: str | Path, out: str | Path, calibration: str | Path | 
                                      "maps into b1", "give --calibration DIR/calibration.json (from bijcr calibrate)"))
         views = MaskViews.from_scene(masks, calib[0], calib[1])
     result = segment(points, colors, normals, mask_ids=views, params=params or SegmentParams(), bases=bases,
-                     source=str(cloud), progress=progress)
+                     source=str(cloud), progress=progress, unsure=unsure)
     paths = write_segments(out, result, points, source=str(cloud), plot=plot)
     return SegmentStage(result, points, cloud, paths, 0 if views is None else len(views))
