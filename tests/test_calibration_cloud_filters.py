@@ -201,3 +201,14 @@ def test_calibrate_writes_the_unsure_flag_only_when_asked(synth_paper, tmp_path)
     U = read_unsure(flagged.files["scene_b1.ply"], len(P))
     assert U is not None and 0 < U.sum() < len(P)
     assert len(P) - U.sum() == len(read_cloud(plain.files["scene_b1.ply"])[0])  # the sure points are the same
+
+
+def test_the_cli_flag_keeps_the_confirmed_points(synth_paper, tmp_path):
+    from bimanual_app.cli import main
+    from segmentation import read_cloud, read_unsure
+
+    assert main(["calibrate", str(synth_paper), "--out", str(tmp_path / "c"), "--no-figure", "--quiet",
+                 "--confirm-unsure"]) == 0
+    ply = tmp_path / "c" / "scene_b1.ply"
+    flags = read_unsure(ply, len(read_cloud(ply)[0]))
+    assert flags is not None and flags.any()
