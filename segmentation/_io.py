@@ -68,7 +68,9 @@ def read_unsure(path: str | Path, n: int | None = None) -> np.ndarray | None:
     by ``bijcr calibrate``: points their own map marked unsure that other views confirmed); None for other
     files, or when the property is missing or the file has not ``n`` vertices.
 
-    Read with numpy: Open3D's point-cloud reader drops properties it does not know."""
+    Read with numpy from the header and the vertex block: :func:`read_cloud`'s Open3D reader (the legacy
+    ``read_point_cloud``) drops properties it does not know; Open3D's tensor reader keeps them and could
+    replace this (it would also read ASCII files, which this returns None for)."""
     path = Path(path)
     if path.suffix.lower() != ".ply":
         return None

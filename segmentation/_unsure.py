@@ -42,7 +42,8 @@ def join_unsure(points: np.ndarray, labels: np.ndarray, unsure: np.ndarray, heig
     unsure = check_shape("unsure", np.asarray(unsure, dtype=bool), (n,))
     out = check_shape("labels", np.asarray(labels, dtype=np.int32), (n,)).copy()
     out[unsure] = -1
-    free = np.flatnonzero(unsure & (check_shape("height", np.asarray(height), (n,)) >= min_height))
+    height = check_shape("height", np.asarray(height, dtype=np.float64), (n,))
+    free = np.flatnonzero(unsure & (height >= min_height))
     if not len(free):
         return out
     # the sure points an unsure one can link to: the sources, each with its segment (background too)
