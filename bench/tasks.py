@@ -117,8 +117,9 @@ def make_scene(base: Path, seed: int, fresh: bool, views: int = VIEWS, objects: 
     return path, time.perf_counter() - t
 
 
-def run_one(scene: Path, work: Path, task: str, masks: bool = False) -> dict:
-    """One task run; returns the facts the table needs."""
+def run_one(scene: Path, work: Path, task: str, masks: bool = False, leave_out: tuple = ()) -> dict:
+    """One task run (``leave_out``: planner fallbacks not tried, ``TaskOptions.leave_out``); returns the facts
+    the table needs."""
     from bimanual_app.io_utils import InputError
     from bimanual_app.tasks import TaskOptions, run_task
 
@@ -129,7 +130,7 @@ def run_one(scene: Path, work: Path, task: str, masks: bool = False) -> dict:
     try:
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
             res = run_task(TaskOptions(task, str(scene), work=str(work), out=str(out), quiet=True, record=False,
-                                       compare_truth=True, masks=masks))
+                                       compare_truth=True, masks=masks, leave_out=tuple(leave_out)))
         rec = res.record
         row["timings"] = dict(res.timings)
         row["planned"] = bool(rec.get("plans"))
@@ -140,6 +141,7 @@ def run_one(scene: Path, work: Path, task: str, masks: bool = False) -> dict:
         row["reason"] = truth.get("reason", "") if row["planned"] else rec.get("reason", "")
         row["object"] = rec.get("object")
         row["sim_s"] = float(rec.get("preview", {}).get("sim_time_s", 0.0))
+        row["fallbacks"] = list((rec.get("plan") or {}).get("info", {}).get("fallbacks", []))
     except InputError as e:  # an earlier stage failed (e.g. no grasp at all): a failure of the pipeline
         row["stage"] = "input"
         row["reason"] = str(e).splitlines()[0][:200]
@@ -172,7 +174,7 @@ def run_scene(job: dict) -> dict:
                 stage_t[mode].setdefault("ground-truth cloud" + (" and objects" if mode == "oracle" else ""),
                                          []).append(dt)
         for task in job["tasks"]:
-            r = run_one(scene, work, task, masks=mode == "masks")
+            r = run_one(scene, work, task, masks=mode == "masks", leave_out=job.get("leave_out", ()))
             rows[mode][task] = r
             for k, v in r["timings"].items():
                 if k != "total":
@@ -254,6 +256,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--with-masks", action="store_true",
                     help="also run the pipeline with the scenes' (exact, synthetic) masks given to the segmenter")
     ap.add_argument("--tasks", default=",".join(TASKS), help="comma-separated tasks (default both)")
+    ap.add_argument("--leave-out", default="", metavar="NAMES",
+                    help="comma-separated planner fallbacks not to try (bimanual_app.tasks.FALLBACKS: what each "
+                         "buys); use with --no-save and a --base holding copies of the stage outputs")
     ap.add_argument("--modes", default=None,
                     help="comma-separated modes: pipeline, gt, oracle (default all three), masks")
     ap.add_argument("--blas-kernel", default=None, metavar="CORE",
@@ -261,6 +266,17 @@ def parse_args(argv=None) -> argparse.Namespace:
                          "SkylakeX, Haswell, Zen): how far the figures move between machines; stage outputs go "
                          "to MODE-blas-CORE/ beside the default ones, the scenes are shared")
     return ap.parse_args(argv)
+
+
+def leave_out_names(args: argparse.Namespace) -> tuple[str, ...]:
+    """The planner fallbacks ``--leave-out`` names (checked against ``bimanual_app.tasks.FALLBACKS``)."""
+    from bimanual_app.tasks import FALLBACKS
+
+    names = tuple(x for x in args.leave_out.split(",") if x)
+    if set(names) - set(FALLBACKS):
+        raise SystemExit(f"bench/tasks.py: --leave-out {args.leave_out}: unknown fallback(s) "
+                         f"{sorted(set(names) - set(FALLBACKS))} -> fix: names from {', '.join(FALLBACKS)}")
+    return names
 
 
 def choose(args: argparse.Namespace) -> tuple[list[int], list[str], list[str], bool]:
@@ -274,6 +290,7 @@ def choose(args: argparse.Namespace) -> tuple[list[int], list[str], list[str], b
             raise SystemExit(f"bench/tasks.py: unknown mode(s) {', '.join(unknown)}; choose from {', '.join(MODES)}")
         modes = [m for m in MODES if m in asked]
     tasks = [t for t in TASKS if t in args.tasks.split(",")]
+    leave_out_names(args)
     if args.seeds:
         seeds = [int(x) for x in args.seeds.split(",")]
     elif args.first_seed is not None:
@@ -284,7 +301,7 @@ def choose(args: argparse.Namespace) -> tuple[list[int], list[str], list[str], b
         seeds = [s for name in sets for s in SETS[name][:n]]
     full = (not args.seeds and args.first_seed is None and not args.quick and args.scenes is None
             and args.set is None and modes == default_modes and tasks == list(TASKS) and not args.blas_kernel
-            and (args.views, args.objects) == (VIEWS, OBJECTS))
+            and (args.views, args.objects) == (VIEWS, OBJECTS) and not args.leave_out)
     return seeds, modes, tasks, full
 
 
@@ -305,8 +322,9 @@ def main(argv=None) -> int:
     if not (v_lo <= args.views <= v_hi and o_lo <= args.objects <= o_hi):
         raise SystemExit(f"bench/tasks.py: --views {args.views} --objects {args.objects}: bijcr synth makes "
                          f"{v_lo}..{v_hi} views per arm and {o_lo}..{o_hi} objects -> fix: counts in those ranges")
+    leave_out = leave_out_names(args)
     jobs = [{"base": str(base), "seed": s, "modes": modes, "fresh": args.fresh, "tasks": tasks,
-             "views": args.views, "objects": args.objects,
+             "views": args.views, "objects": args.objects, "leave_out": leave_out,
              "stages": stage_folders(modes, args.blas_kernel)} for s in seeds]
     cpus = args.jobs or os.cpu_count() or 1
     _log(f"{len(jobs)} scenes x {len(modes)} modes x {len(tasks)} tasks on Ray "
@@ -431,7 +449,7 @@ def report(results: list[dict], modes: list[str], tasks: list[str], total: float
         span = f"seeds {first}..{last}" if first is not None else f"seeds {seeds[0]}..{seeds[-1]}"
         L += [f"## {SET_NAME[name].capitalize()} set ({span}: {len(rs)} scenes run)", ""]
         L += set_table(rs, modes, tasks) + [""]
-    L += stage_rows(results, modes, tasks)
+    L += stage_rows(results, modes, tasks) + [""] + fallback_rows(results, modes, tasks)
     fails = [(name, m, t, r["rows"][m][t]) for name in ("heldout", "tuning", "other") for r in by_set[name]
              for m in modes for t in tasks if t in r["rows"].get(m, {}) and not r["rows"][m][t]["truth_ok"]]
     if fails:
@@ -440,6 +458,27 @@ def report(results: list[dict], modes: list[str], tasks: list[str], total: float
             L.append(f"- {r.get('scene')} ({SET_NAME[name]}), {MODE_NAME[m]}, {t}, object {r.get('object')}: "
                      f"[{r['stage'] or 'preview'}] {r['reason'][:220]}")
     return "\n".join(L) + "\n"
+
+
+def fallback_rows(results: list[dict], modes: list[str], tasks: list[str]) -> list[str]:
+    """How many runs' plans took each of the planner's fallbacks (``bimanual_app.tasks.FALLBACKS``), and how
+    many of those succeeded in reality."""
+    used: dict = {}
+    for r in results:
+        for m in modes:
+            for t, row in r["rows"].get(m, {}).items():
+                for name in set(row.get("fallbacks", [])):
+                    k = used.setdefault((t, m, name), [0, 0])
+                    k[0] += 1
+                    k[1] += bool(row["truth_ok"])
+    if not used:
+        return ["Planner fallbacks (bimanual_app.tasks.FALLBACKS): no plan took one."]
+    L = ["Planner fallbacks the plans took (bimanual_app.tasks.FALLBACKS; runs whose plan took it, of them "
+         "succeeded in reality):", "", "| task | transforms / objects | fallback | runs | succeeded |",
+         "| --- | --- | --- | --- | --- |"]
+    for (t, m, name), (n, ok) in sorted(used.items(), key=lambda x: (tasks.index(x[0][0]), modes.index(x[0][1]))):
+        L.append(f"| {t} | {MODE_NAME[m]} | {name} | {n} | {ok} |")
+    return L
 
 
 def stage_rows(results: list[dict], modes: list[str], tasks: list[str]) -> list[str]:

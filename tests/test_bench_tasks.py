@@ -60,6 +60,25 @@ def test_choose_full_run_and_subsets():
     assert not full  # other counts never rewrite the docs' table
 
 
+def test_leave_out_runs_never_rewrite_the_table_and_name_known_fallbacks():
+    """``--leave-out`` (what a planner fallback buys): its runs are not the full run, and an unknown name is
+    refused with the known ones."""
+    args = bench_tasks.parse_args(["--leave-out", "make-way,skip-home"])
+    assert bench_tasks.leave_out_names(args) == ("make-way", "skip-home") and not bench_tasks.choose(args)[3]
+    with pytest.raises(SystemExit, match="unknown fallback.*make_way.*fix: names from lower-joint-lift"):
+        bench_tasks.choose(bench_tasks.parse_args(["--leave-out", "make_way"]))
+
+
+def test_fallback_rows_count_the_plans_that_took_each_fallback():
+    res = _results({"pipeline": [True, False, True]})
+    res[0]["rows"]["pipeline"]["joint-grasp"]["fallbacks"] = ["lower-joint-lift"]
+    res[1]["rows"]["pipeline"]["joint-grasp"]["fallbacks"] = ["lower-joint-lift"]
+    text = "\n".join(bench_tasks.fallback_rows(res, ["pipeline"], ["joint-grasp"]))
+    assert "| joint-grasp | pipeline (calibrated) | lower-joint-lift | 2 | 1 |" in text
+    assert "no plan took one" in bench_tasks.fallback_rows(_results({"pipeline": [True]}), ["pipeline"],
+                                                           ["joint-grasp"])[0]
+
+
 def test_scenes_of_other_counts_get_their_own_folders():
     assert bench_tasks.scene_name(18000) == "synth_18000"
     assert bench_tasks.scene_name(18000, views=6, objects=7) == "synth_18000_v6_o7"

@@ -7,7 +7,7 @@ from bimanual_app.hardware import JointTrajectory
 from bimanual_app.io_utils import InputError
 from bimanual_app.tasks import Phase, TaskPlan, handover_candidates, joint_candidates
 from bimanual_app.tasks._grasps import choose
-from bimanual_app.tasks._motion import robot_points_mask
+from bimanual_app.tasks._motion import PlanFailure, robot_points_mask
 
 
 def test_timeline_joins_phases_on_one_clock_and_idle_arms_hold():
@@ -404,7 +404,11 @@ def test_handover_primary_stays_backed_off_when_its_start_is_where_the_object_is
     names = [p.name for p in plan.phases]
     assert "home" not in names and names[-2:] == ["retreat", "hold"]
     assert plan.info["home"].startswith("skipped: the primary's start pose meets the held object")
+    assert plan.info["fallbacks"] == ["skip-home"]
     motion.validate_timeline(plan.timeline(), plan.opening_spans())
+    motion.leave_out = frozenset({"skip-home"})  # left out (TaskOptions.leave_out): the plan fails there
+    with pytest.raises(PlanFailure, match="home: the primary's start pose meets the held object"):
+        plan_handover(motion, choice, q_start, {"primary": 0.0, "secondary": 0.0}, obj, up=up)
 
 
 def test_receiver_pre_grasp_backs_off_where_its_open_fingers_are_too_near_the_carried_object():
@@ -429,7 +433,11 @@ def test_receiver_pre_grasp_backs_off_where_its_open_fingers_are_too_near_the_ca
     start = motion.tcp_pose("secondary", appr.q[0])[:3, 3]
     assert np.linalg.norm(start - R[:3, 3]) > 0.03  # 3.5 or 5.5 cm back, not 1.5
     assert np.allclose(np.cross(start - R[:3, 3], R[:3, 2]), 0, atol=2e-3)  # on the approach line
+    assert plan.info["fallbacks"] == ["receiver-back-off"]
     motion.validate_timeline(plan.timeline(), plan.opening_spans())
+    motion.leave_out = frozenset({"receiver-back-off"})  # left out: no free pre-grasp, the reach fails
+    with pytest.raises(PlanFailure, match="receive-reach"):
+        plan_handover(motion, choice, q_start, {"primary": 0.0, "secondary": 0.0}, obj, up=up)
 
 
 def test_handover_carry_keeps_less_margin_where_the_arm_cannot_lift_the_object_clear(monkeypatch):
@@ -456,9 +464,9 @@ def test_handover_carry_keeps_less_margin_where_the_arm_cannot_lift_the_object_c
     q0 = {"primary": default_ready(robot), "secondary": default_ready(robot)}
     w0 = {"primary": 0.0, "secondary": 0.0}
 
-    def plan_with_lifts_up_to(top):
+    def plan_with_lifts_up_to(top, leave_out=()):
         # a free-motion margin of 2 cm: the neighbour 1.7 cm away is within it
-        motion = TaskMotion(robot, FIX_T_B1_B2, pts, obj, pts[labels == 0], up=up, margin=0.02)
+        motion = TaskMotion(robot, FIX_T_B1_B2, pts, obj, pts[labels == 0], up=up, margin=0.02, leave_out=leave_out)
         real = motion.cartesian
 
         def cartesian(moves, q_now, min_duration=0.0):
@@ -475,8 +483,10 @@ def test_handover_carry_keeps_less_margin_where_the_arm_cannot_lift_the_object_c
     motion, plan = plan_with_lifts_up_to(0.065)
     lift = next(p for p in plan.phases if p.name == "lift")
     assert "6 cm (straight up)" in lift.note
-    assert plan.info["carry_padding_m"] < OBJECT_PADDING - 0.005
+    assert plan.info["carry_padding_m"] < OBJECT_PADDING - 0.005 and plan.info["fallbacks"] == ["carry-padding"]
     motion.validate_timeline(plan.timeline(), plan.opening_spans())
+    with pytest.raises(PlanFailure, match="lift: lifted 6 cm"):  # the fallback left out
+        plan_with_lifts_up_to(0.065, leave_out=("carry-padding",))
     _, plan = plan_with_lifts_up_to(0.2)  # 14 cm up it is clear of the neighbour
     assert "14 cm" in next(p for p in plan.phases if p.name == "lift").note and "carry_padding_m" not in plan.info
 
@@ -500,8 +510,13 @@ def test_handover_secondary_in_the_primarys_way_turns_aside_first():
     assert names[:2] == ["make-way", "reach"] and plan.info["make_way_rad"] in MAKE_WAY_TURNS
     way = plan.phases[0].trajectories["secondary"]
     assert way.q[-1][0] == pytest.approx(q_s[0] + plan.info["make_way_rad"])
-    assert np.allclose(way.q[-1][1:], q_s[1:])
+    assert np.allclose(way.q[-1][1:], q_s[1:]) and plan.info["fallbacks"] == ["make-way"]
     motion.validate_timeline(plan.timeline(), plan.opening_spans())
+    motion.leave_out = frozenset({"make-way"})  # left out: the primary's reach meets the secondary
+    with pytest.raises(PlanFailure, match="secondary"):
+        plan_handover(motion, choice, {"primary": q_p, "secondary": q_s}, {"primary": 0.0, "secondary": 0.0},
+                      obj, up=up)
+    motion.leave_out = frozenset()
     plan = plan_handover(motion, choice, {"primary": q_p, "secondary": default_ready(robot)},
                          {"primary": 0.0, "secondary": 0.0}, obj, up=up)
     assert plan.phases[0].name == "reach" and "make_way_rad" not in plan.info
@@ -524,8 +539,9 @@ def test_joint_lift_falls_back_to_the_least_lift_at_the_top_of_the_reach(monkeyp
     q0 = {"primary": default_ready(robot), "secondary": default_ready(robot)}
     w0 = {"primary": 0.0, "secondary": 0.0}
 
-    def plan_with_reach_up_to(top):
-        motion = TaskMotion(robot, FIX_T_B1_B2, pts, obj, pts[labels == 1], up=np.array([0.0, 0.0, 1.0]))
+    def plan_with_reach_up_to(top, leave_out=()):
+        motion = TaskMotion(robot, FIX_T_B1_B2, pts, obj, pts[labels == 1], up=np.array([0.0, 0.0, 1.0]),
+                            leave_out=leave_out)
         real = motion.cartesian
 
         def cartesian(moves, q_now, min_duration=0.0):
@@ -539,8 +555,12 @@ def test_joint_lift_falls_back_to_the_least_lift_at_the_top_of_the_reach(monkeyp
 
     plan = plan_with_reach_up_to(0.11)
     assert plan.info["object_motion"]["lift_m"] == pytest.approx(LIFT_MIN) and LIFT_MIN >= 0.105
+    assert plan.info["fallbacks"] == ["lower-joint-lift"]
     with pytest.raises(PlanFailure, match="leaves its reach"):
         plan_with_reach_up_to(0.10)
+    with pytest.raises(PlanFailure, match="leaves its reach"):  # the lower lifts left out
+        plan_with_reach_up_to(0.11, leave_out=("lower-joint-lift",))
+    assert "fallbacks" not in plan_with_reach_up_to(0.2).info  # the full lift: no fallback
 
 
 def test_joint_place_is_the_lift_run_backwards_in_joint_space():
@@ -651,3 +671,14 @@ def test_transfer_goals_keep_the_wrist_branch_the_giver_can_back_off_from():
     kept = _retreatable(motion, "primary", np.stack([q_limit, q_free]), T, up)
     np.testing.assert_allclose(kept, q_free[None])
     np.testing.assert_allclose(_retreatable(motion, "primary", q_limit[None], T, up), q_limit[None])
+
+
+def test_leave_out_names_only_the_planners_fallbacks():
+    """``TaskOptions.leave_out`` (what bench/tasks.py --leave-out measures) takes names from FALLBACKS; any
+    other name is refused before anything runs, naming the field and the known names."""
+    from bimanual_app.tasks import FALLBACKS, TaskOptions, run_task
+
+    assert {"make-way", "carry-padding", "receiver-back-off", "skip-home", "lower-joint-lift"} <= set(FALLBACKS)
+    for bad in (("make_way",), "make-way"):
+        with pytest.raises(InputError, match=r"leave_out.*unknown planner fallback.*make-way, "):
+            run_task(TaskOptions("handover", "no-such-scene", leave_out=bad))

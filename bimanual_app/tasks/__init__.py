@@ -7,6 +7,8 @@ Public API (imported lazily, so ``bijcr --help`` loading ``bimanual_app.tasks.cl
     TaskPlan / Phase: a plan as phases of JointTrajectory per arm; .timeline() -> {arm: JointTrajectory}
     plan_joint_grasp(motion, JointChoice, q_start, width_start) -> TaskPlan
     plan_handover(motion, HandoverChoice, q_start, width_start, object_points) -> TaskPlan
+    FALLBACKS: name -> what it does, the planner's fallbacks (TaskOptions.leave_out leaves them out; a plan
+        lists those it took in info["fallbacks"])
     TaskMotion: the motion layer for one task (IK, OMPL, Cartesian moves, validation, collision contexts)
     preview_plan(plan, inputs, robot, object_id, truth=False) -> PreviewResult
     check_calibration_scene(scene, calibration, path): refuses a calibration of another scene
@@ -21,7 +23,7 @@ from bimanual_app.lazy import lazy_exports
 _EXPORTS = {
     "run_task": "_run", "TaskOptions": "_run", "TaskResult": "_run",
     "TaskPlan": "_plan", "Phase": "_plan",
-    "plan_joint_grasp": "_planners", "plan_handover": "_planners",
+    "plan_joint_grasp": "_planners", "plan_handover": "_planners", "FALLBACKS": "_planners",
     "TaskMotion": "_motion", "PlanFailure": "_motion", "robot_points_mask": "_motion",
     "preview_plan": "_preview", "PreviewResult": "_preview",
     "GraspSpec": "_grasps", "JointChoice": "_grasps", "HandoverChoice": "_grasps",

@@ -22,6 +22,7 @@ straddle it), or attached to a gripper (carrying). Every trajectory returned has
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -143,12 +144,14 @@ class TaskMotion:
         speed: fraction of the velocity/acceleration limits used.
         margin: collision margin (m) of free motions.
         contact_margin: collision margin (m) of the straight moves in contact (see :meth:`context`).
+        leave_out: names of the planner's fallbacks not to try (``tasks._planners.FALLBACKS``), to measure
+            what each buys; empty by default.
     """
 
     def __init__(self, robot, T_b1_b2: np.ndarray, points: np.ndarray, object_points: np.ndarray,
                  segment_points: np.ndarray | None = None, plan_time: float = 5.0, speed: float = 0.5, margin: float = 0.01,
                  cut_radius: float = 0.015, contact_margin: float = CONTACT_MARGIN, resolution: float = MAP_RESOLUTION,
-                 body=None, seed: int | None = 0, up: np.ndarray | None = None):
+                 body=None, seed: int | None = 0, up: np.ndarray | None = None, leave_out: Iterable[str] = ()):
         from bimanual_app.planning import BimanualSetup
 
         self.robot = robot
@@ -158,6 +161,7 @@ class TaskMotion:
         self.plan_time = float(plan_time)
         self.contact_margin = float(contact_margin)
         self.seed = seed
+        self.leave_out = frozenset(leave_out)
         self.speed = float(speed)
         self.up = None if up is None else check_shape("up", np.asarray(up, dtype=np.float64), (3,))
         self.object_points = np.asarray(object_points, dtype=np.float64)

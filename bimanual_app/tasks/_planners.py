@@ -37,7 +37,18 @@ from ._grasps import GraspSpec, HandoverChoice, JointChoice
 from ._motion import CONTACT_MARGIN, OBJECT_PADDING, PlanFailure, TaskMotion, line_poses, translate_along
 from ._plan import Phase, TaskPlan
 
-__all__ = ["plan_joint_grasp", "plan_handover", "LIFT", "HOLD_S"]
+__all__ = ["plan_joint_grasp", "plan_handover", "LIFT", "HOLD_S", "FALLBACKS"]
+
+# The planner's fallbacks by name: the rungs after a ladder's first. ``TaskOptions.leave_out`` (bench/tasks.py
+# --leave-out) leaves them out, to measure what each buys on scenes nobody tuned on (docs/tasks.md, *The
+# fallbacks, each left out*); a plan lists those it used in ``info["fallbacks"]``.
+FALLBACKS = {
+    "lower-joint-lift": "the joint lift's end poses below LIFT, down to LIFT_MIN",
+    "make-way": "the receiver first turns about its base out of the giver's way (MAKE_WAY_TURNS)",
+    "carry-padding": "the carried object's box shrunk where no lift ends clear of the free-motion margin",
+    "receiver-back-off": "the receiver's pre-grasp 2 or 4 cm further back, or with the carried object's box shrunk",
+    "skip-home": "the giver stays backed off where its start pose meets the object the receiver holds",
+}
 
 LIFT = 0.15  # m the joint grasp lifts the object (>= 10 cm needed)
 LIFT_MIN = 0.105  # m: the least lift it falls back to at the top of the arms' reach
@@ -296,6 +307,18 @@ def first_success(strategies: Iterable[Strategy]) -> tuple[str, object]:
     raise StrategiesFailed(failures)
 
 
+def _fallback(motion: TaskMotion, name: str) -> bool:
+    """Whether the fallback ``name`` (a key of FALLBACKS) may be tried (it is not in ``motion.leave_out``)."""
+    assert name in FALLBACKS, name
+    return name not in motion.leave_out
+
+
+def _used(plan: TaskPlan, name: str) -> None:
+    """Record in ``plan.info["fallbacks"]`` that the plan took the fallback ``name``."""
+    assert name in FALLBACKS, name
+    plan.info.setdefault("fallbacks", []).append(name)
+
+
 def plan_joint_grasp(motion: TaskMotion, choice: JointChoice, q_start: dict, width_start: dict,
                      lift: float = LIFT, up: np.ndarray | None = None) -> TaskPlan:
     """The joint-grasp plan for ``choice`` from ``q_start`` (arm -> (J,)); raises PlanFailure (its message
@@ -463,7 +486,9 @@ def _lift_strategies(P: _Pair, S: dict, q: dict, lift: float) -> Iterable[Strate
     when both arms follow none of the lifts, or every one they follow sweeps the object through the map."""
     from bimanual_app.kinematics import arms_ik, lift_candidates, lift_costs, object_motion, rank_lifts
 
-    c = lift_candidates(P.motion.object_points.mean(axis=0), P.up, lift, min(LIFT_MIN, lift), radius=LIFT_RADIUS)
+    low = min(LIFT_MIN, lift) if _fallback(P.motion, "lower-joint-lift") else lift
+    c = lift_candidates(P.motion.object_points.mean(axis=0), P.up, lift, low, radius=LIFT_RADIUS,
+                        n_heights=4 if low < lift else 1)
     arms = _lift_arms(P.motion, q)
     ik = arms_ik(arms, S, c)
     order = rank_lifts(c, ik, lift_costs(c, ik, arms))
@@ -511,10 +536,13 @@ def _joint_lift(P: _Pair, plan: TaskPlan, S: dict, lift: float) -> dict:
     """4. Lift: the object's motion, both grippers follow it. Returns the lift phase's trajectories (arm ->
     JointTrajectory)."""
     q, _ = plan.end_state()
+    asked = lift
     try:
         _, (tr, T_moves, how, lift) = first_success(_lift_strategies(P, S, q, lift))
     except StrategiesFailed as e:
         raise e.first from None
+    if lift < asked - 1e-6:
+        _used(plan, "lower-joint-lift")
     lifted = {a: _jt(tr[a].times, tr[a].q, P.w_hold[a]) for a in ARMS}
     plan.add(Phase("lift", lifted, f"object lifted {lift * 100:.0f} cm ({how}), both grippers following it",
                    "cartesian"))
@@ -578,7 +606,8 @@ def plan_handover(motion: TaskMotion, choice: HandoverChoice, q_start: dict, wid
         return _handover(motion, choice, q_start, width_start, object_points, up, at)
     except PlanFailure as e:
         first = PlanFailure(e.stage, f"{at[-1]}: {e.message}")
-        if at[-1] not in ("reach", "approach", "lift") or choice.taker not in e.message:
+        if (at[-1] not in ("reach", "approach", "lift") or choice.taker not in e.message
+                or not _fallback(motion, "make-way")):
             raise first from None
     # the waiting secondary is in the primary's way to the object or up from it (an object beside the
     # secondary's base): it first turns about its base joint, out of the way, and takes the object over
@@ -615,6 +644,7 @@ def _make_way_strategies(motion: TaskMotion, choice: HandoverChoice, q_start: di
         for ph in rest.phases:
             plan.add(ph)
         plan.info["make_way_rad"] = float(turn)
+        _used(plan, "make-way")
         return plan
 
     return [Strategy(f"turn {np.degrees(t):+.0f} deg", partial(attempt, t)) for t in MAKE_WAY_TURNS]
@@ -757,8 +787,9 @@ def _carry_padding_strategies(H: _Handover, q: dict, dirs: list, attach: tuple) 
             raise e.first from None
         return (*r, pad)
 
-    return [Strategy("object padding", partial(attempt, OBJECT_PADDING)),
-            Strategy("reduced object padding", partial(attempt, H.near_pad))]
+    return [Strategy("object padding", partial(attempt, OBJECT_PADDING))] + (
+        [Strategy("reduced object padding", partial(attempt, H.near_pad))] if _fallback(H.motion, "carry-padding")
+        else [])
 
 
 def _handover_lift(H: _Handover, plan: TaskPlan, attach: tuple) -> float:
@@ -782,6 +813,7 @@ def _handover_lift(H: _Handover, plan: TaskPlan, attach: tuple) -> float:
                           ) from None
     if name == "reduced object padding":
         plan.info["carry_padding_m"] = carry_pad
+        _used(plan, "carry-padding")
     plan.add(Phase("lift", {H.g: _jt(tr.times, tr.q, CLOSED)}, f"lifted {dist * 100:.0f} cm ({how})",
                    "cartesian"))
     return carry_pad
@@ -852,11 +884,10 @@ def _receiver_pregrasp_strategies(H: _Handover, q: dict, attach: tuple, pre_rec:
             raise PlanFailure("validation", f"no pre-grasp solution is free: {why[0][0]}")
         return np.stack(ok), T_pre, pad
 
+    rungs = (("its pre-grasp", 0.0, OBJECT_PADDING), ("2 cm further back", 0.02, OBJECT_PADDING),
+             ("4 cm further back", 0.04, OBJECT_PADDING), ("its pre-grasp, the object's box shrunk", 0.0, H.near_pad))
     return [Strategy(name, partial(attempt, extra, pad))
-            for name, extra, pad in (("its pre-grasp", 0.0, OBJECT_PADDING),
-                                     ("2 cm further back", 0.02, OBJECT_PADDING),
-                                     ("4 cm further back", 0.04, OBJECT_PADDING),
-                                     ("its pre-grasp, the object's box shrunk", 0.0, H.near_pad))]
+            for name, extra, pad in rungs[:None if _fallback(motion, "receiver-back-off") else 1]]
 
 
 def _receive_reach_strategies(H: _Handover, q: dict, attach: tuple, sols: np.ndarray, pad: float,
@@ -890,7 +921,9 @@ def _receive_reach(H: _Handover, plan: TaskPlan, attach: tuple, pre_rec: np.ndar
     w0 = w_now[H.r]  # as it was (or opened to the receiver's width on a two-arm transfer)
     fallback: list = []
     try:
-        _, (sols, pre_used, pad_used) = first_success(_receiver_pregrasp_strategies(H, q, attach, pre_rec, fallback))
+        how, (sols, pre_used, pad_used) = first_success(_receiver_pregrasp_strategies(H, q, attach, pre_rec, fallback))
+        if how != "its pre-grasp":
+            _used(plan, "receiver-back-off")
     except StrategiesFailed as e:
         if not fallback:  # no pre-grasp had a solution
             raise e.first from None
@@ -923,8 +956,11 @@ def _giver_lets_go(H: _Handover, plan: TaskPlan, at: list) -> None:
         home_blocked = motion.problems({H.g: H.q_start[H.g], H.r: q[H.r]})
         if not home_blocked:
             tr = motion.plan_free([H.g], q, [{H.g: H.q_start[H.g]}])[H.g]
+    if home_blocked and not _fallback(motion, "skip-home"):
+        raise PlanFailure("validation", f"the {H.g}'s start pose meets the held object ({home_blocked[0]})")
     if home_blocked:  # the object, now held by the secondary, is where the primary started: it stays backed off
         plan.info["home"] = f"skipped: the {H.g}'s start pose meets the held object ({home_blocked[0]})"
+        _used(plan, "skip-home")
     else:
         plan.add(Phase("home", {H.g: _jt(tr.times, tr.q, H.wl)}, f"{H.g} back to its start pose", "ompl"))
     q, _ = plan.end_state()

@@ -55,6 +55,7 @@ class TaskOptions:
     speed: float = 0.5
     compare_truth: bool = False  # also run the same plan in the ground-truth world (task.json "preview_truth")
     masks: bool | None = None  # segment with the scene's masks when it runs the stage; None: when it has them
+    leave_out: tuple[str, ...] = ()  # planner fallbacks not to try (tasks._planners.FALLBACKS): a measuring knob
 
 
 @dataclass
@@ -131,6 +132,7 @@ def run_task(opts: TaskOptions) -> TaskResult:
                                  "runs only plans previewed on the reconstruction", "leave out one of the two"))
     if not opts.plan_time > 0:
         raise InputError(Problem("", "--plan-time", "must be > 0", "give seconds, e.g. --plan-time 5"))
+    _check_leave_out(opts.leave_out)
     _check_output_folders(opts.work, opts.out)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -303,6 +305,16 @@ def _plan_candidate(opts, motion_o, c, k: int, q_start, width_start, pts_o, up):
     return plan, timeline
 
 
+def _check_leave_out(names) -> None:
+    """InputError for a name in ``TaskOptions.leave_out`` that is not one of the planner's fallbacks."""
+    from ._planners import FALLBACKS
+
+    unknown = sorted(set(names) - set(FALLBACKS))
+    if isinstance(names, str) or unknown:
+        raise InputError(Problem("", "leave_out", f"unknown planner fallback(s) {unknown or [names]}",
+                                 f"a tuple of names from {', '.join(FALLBACKS)}"))
+
+
 def _object_motion(opts, inputs, robot, o: int, rec: dict, s: _Search):
     """``(TaskMotion, surface points (M, 3))`` of object ``o``, built once; None when it has no body or when,
     as the first map built, it finds the start configuration blocked (``s.start_problems``)."""
@@ -321,7 +333,7 @@ def _object_motion(opts, inputs, robot, o: int, rec: dict, s: _Search):
     pts_o = sh.surface_points_b1()
     motion_o = TaskMotion(robot, inputs.T_b1_b2, inputs.points[~s.robot_pts], pts_o,
                           inputs.points[inputs.labels == o], plan_time=opts.plan_time, speed=opts.speed,
-                          body=sh, up=s.table.normal)
+                          body=sh, up=s.table.normal, leave_out=opts.leave_out)
     if s.motion is None:  # the first map built: the start must be free in it
         s.start_problems = motion_o.problems(s.q_start)
         if s.start_problems:
