@@ -257,8 +257,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                     help="also run the pipeline with the scenes' (exact, synthetic) masks given to the segmenter")
     ap.add_argument("--tasks", default=",".join(TASKS), help="comma-separated tasks (default both)")
     ap.add_argument("--leave-out", default="", metavar="NAMES",
-                    help="comma-separated planner fallbacks not to try (bimanual_app.tasks.FALLBACKS: what each "
-                         "buys); use with --no-save and a --base holding copies of the stage outputs")
+                    help="comma-separated fallbacks not to try, to measure what each buys: the planner's "
+                         "(bimanual_app.tasks.FALLBACKS) and the hand-over search's (grasping.HANDOVER_FALLBACKS; "
+                         "they act only where the grasp stage runs: a --base without grasps/); never saves")
     ap.add_argument("--modes", default=None,
                     help="comma-separated modes: pipeline, gt, oracle (default all three), masks")
     ap.add_argument("--blas-kernel", default=None, metavar="CORE",
@@ -269,13 +270,16 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 def leave_out_names(args: argparse.Namespace) -> tuple[str, ...]:
-    """The planner fallbacks ``--leave-out`` names (checked against ``bimanual_app.tasks.FALLBACKS``)."""
+    """The fallbacks ``--leave-out`` names, checked against the planner's (``bimanual_app.tasks.FALLBACKS``) and
+    the hand-over search's (``grasping.HANDOVER_FALLBACKS``)."""
     from bimanual_app.tasks import FALLBACKS
+    from grasping import HANDOVER_FALLBACKS
 
+    known = [*FALLBACKS, *HANDOVER_FALLBACKS]
     names = tuple(x for x in args.leave_out.split(",") if x)
-    if set(names) - set(FALLBACKS):
+    if set(names) - set(known):
         raise SystemExit(f"bench/tasks.py: --leave-out {args.leave_out}: unknown fallback(s) "
-                         f"{sorted(set(names) - set(FALLBACKS))} -> fix: names from {', '.join(FALLBACKS)}")
+                         f"{sorted(set(names) - set(known))} -> fix: names from {', '.join(known)}")
     return names
 
 

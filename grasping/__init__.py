@@ -12,6 +12,7 @@ Public API:
     write_grasps_json(path, plan) / plan_to_dict(plan) / draw_plan(path, plan, points, labels)
     rotate_about_approach(T_b_g)                        the same grasp turned 180 degrees about z
     grasp_stage(cloud, segments, out_dir, calibration=None, ...) -> GraspStage   (bijcr grasp / run)
+    HANDOVER_FALLBACKS: name -> what it does, the hand-over search's fallbacks (grasp_stage(leave_out=...))
 CLI: ``bijcr grasp SCENE_DIR_OR_CLOUD --segments DIR/segments.npz --out DIR [--calibration calibration.json]``.
 """
 
@@ -26,7 +27,7 @@ _EXPORTS = {
     "Arm": "_arms", "ArmGrasps": "_arms", "TwoArmCheck": "_arms", "make_arms": "_arms", "reachable_grasps": "_arms",
     "GripperCollider": "_collision", "SceneOctree": "_collision", "grippers_collide": "_collision", "grippers_distance": "_collision",
     "GripperModel": "_gripper", "GripperShape": "_gripper", "load_gripper": "_gripper",
-    "Handover": "_handover", "HandoverParams": "_handover",
+    "Handover": "_handover", "HandoverParams": "_handover", "HANDOVER_FALLBACKS": "_handover",
     "SceneCloud": "_inputs", "b2b_sigma": "_inputs", "load_calibration": "_inputs", "load_cloud": "_inputs", "load_segments": "_inputs", "resolve_inputs": "_inputs", "scene_cloud": "_inputs",
     "JointPair": "_joint",
     "ObjectGeometry": "_objects", "Support": "_objects", "check_graspable": "_objects", "estimate_support": "_objects", "object_geometry": "_objects",

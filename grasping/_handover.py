@@ -148,6 +148,27 @@ class HandoverParams:
     towards_object: tuple[float, ...] = (0.5, 1.0)
 
 
+# The hand-over search's fallbacks by name (``grasp_stage(leave_out=)``, bench/tasks.py --leave-out): each
+# left out, to measure what it buys on scenes nobody tuned on (docs/tasks.md, *The fallbacks, each left out*).
+HANDOVER_FALLBACKS = {
+    "shallow-holds": "where no hand-over is found, the giver's picks drawn again as shallow holds (shallow_depths)",
+    "handover-redraws": "where no object has a hand-over, the receivers and picks drawn again (redraws)",
+}
+
+
+def without_fallbacks(params: HandoverParams, leave_out) -> HandoverParams:
+    """``params`` with the hand-over fallbacks named in ``leave_out`` (keys of HANDOVER_FALLBACKS; other names
+    are ignored) switched off."""
+    from dataclasses import replace
+
+    names = set(leave_out)
+    if "shallow-holds" in names:
+        params = replace(params, shallow_depths=())
+    if "handover-redraws" in names:
+        params = replace(params, redraws=0)
+    return params
+
+
 @dataclass
 class Handover:
     """A planned hand-over (all poses in b1).

@@ -37,12 +37,13 @@ def _no_grasp_problems(plan, seg_path: Path) -> list:
 def grasp_stage(scene: str | Path, segments: str | Path, out: str | Path, calibration: str | Path | None = None,
                 robot: str = "piper", objects: list[int] | None = None, candidates: int = 500,
                 handover: bool = True, seed: int = 0, log: Callable[[str], None] | None = None,
-                givers: tuple[str, ...] = ("primary", "secondary")) -> GraspStage:
+                givers: tuple[str, ...] = ("primary", "secondary"), leave_out: tuple[str, ...] = ()) -> GraspStage:
     """Plan grasps for the objects of ``segments`` in the cloud ``scene`` (scene_b1.ply or its folder).
 
     ``calibration``: calibration.json with T_b1_b2 (default: beside the cloud; without one, the primary arm
     only). ``candidates``: hand frames sampled per object (>= 10). ``givers``: the arms that may pick and give
-    in a hand-over, in order of preference (``PlanParams.handover_givers``). The output folder is checked first.
+    in a hand-over, in order of preference (``PlanParams.handover_givers``). ``leave_out``: hand-over fallbacks
+    not to try (keys of ``HANDOVER_FALLBACKS``; a measuring knob). The output folder is checked first.
     Raises InputError for bad input, or listing why when no object has a usable grasp.
     """
     from bimanual_app.robots import load_robot
@@ -51,6 +52,7 @@ def grasp_stage(scene: str | Path, segments: str | Path, out: str | Path, calibr
     from ._antipodal import SamplerParams
     from ._arms import make_arms
     from ._gripper import load_gripper
+    from ._handover import HANDOVER_FALLBACKS, without_fallbacks
     from ._inputs import b2b_sigma, load_calibration, load_cloud, load_segments, resolve_inputs, scene_cloud
     from ._output import draw_plan, write_grasps_json
     from ._plan import PlanParams, plan_grasps
@@ -59,6 +61,10 @@ def grasp_stage(scene: str | Path, segments: str | Path, out: str | Path, calibr
     out = check_output_dir(out)
     if candidates < 10:
         raise InputError(Problem("command line", "--candidates", f"{candidates} is too few", "use 100 or more"))
+    unknown = sorted(set(leave_out) - set(HANDOVER_FALLBACKS))
+    if isinstance(leave_out, str) or unknown:
+        raise InputError(Problem("grasp_stage", "leave_out", f"unknown hand-over fallback(s) {unknown or [leave_out]}",
+                                 f"a tuple of names from {', '.join(HANDOVER_FALLBACKS)}"))
     cloud_path, cal_path = resolve_inputs(scene, calibration)
     seg_path = Path(segments)
     points, colors = load_cloud(cloud_path)
@@ -80,6 +86,7 @@ def grasp_stage(scene: str | Path, segments: str | Path, out: str | Path, calibr
     arms = make_arms(load_robot(robot), gripper, T_b1_b2)
     params = PlanParams(sampler=replace(SamplerParams(), n_candidates=candidates, seed=seed), handover=handover,
                         handover_givers=tuple(givers))
+    params = replace(params, handover_params=without_fallbacks(params.handover_params, leave_out))
     if sigma is not None:  # hand-over receivers ranked by how likely they catch the object despite it
         params = replace(params, handover_params=replace(params.handover_params, b2b_sigma_m=sigma[0],
                                                          b2b_sigma_rad=sigma[1]))

@@ -219,3 +219,8 @@ def test_two_runs_paired_scene_by_scene_from_their_progress_lines():
              "rows": {"pipeline": {"handover": {"truth_ok": True, "stage": ""}}}}
     assert tool.parse_lines(["[bench tasks] " + bench_tasks.scene_line(1, 1, other)]) == {
         ("pipeline", "handover", 18200): "OK"}  # a scene of other counts
+
+
+def test_leave_out_takes_the_hand_over_searchs_fallbacks_too():
+    args = bench_tasks.parse_args(["--leave-out", "shallow-holds,handover-redraws"])
+    assert bench_tasks.leave_out_names(args) == ("shallow-holds", "handover-redraws")

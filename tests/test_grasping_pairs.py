@@ -634,3 +634,35 @@ def test_push_pairs_off_the_face_middle_where_the_arms_reach_only_there():
         assert abs(abs(c1[1]) - 0.16) < 0.01 and abs(abs(c2[1]) - 0.16) < 0.01 and c1[1] * c2[1] < 0  # both ends
         assert abs(c1[0] - c2[0]) <= 0.02  # across from each other: one squeeze line
     assert not plan(PushParams(laterals=(0.0,))).joint
+
+
+def test_hand_over_fallbacks_left_out_by_name(monkeypatch, tmp_path):
+    """``grasp_stage(leave_out=...)`` (what bench/tasks.py --leave-out measures) switches the hand-over search's
+    fallbacks off by name: no shallow holds after a search that found none, no redraws; unknown names are
+    refused naming the field."""
+    import grasping._plan as gplan
+    from bimanual_app.io_utils import InputError
+    from grasping import HANDOVER_FALLBACKS, HandoverParams, grasp_stage
+    from grasping._handover import without_fallbacks
+
+    hp = HandoverParams()
+    off = without_fallbacks(hp, tuple(HANDOVER_FALLBACKS))
+    assert hp.shallow_depths and hp.redraws > 0 and off.shallow_depths == () and off.redraws == 0
+    assert without_fallbacks(hp, ("make-way",)) == hp  # a planner fallback: not the search's
+    P, L = make_cloud([Obj("cylinder", (0.3, 0.2), (0.05, 0.05, 0.10))])
+    real, calls = gplan.plan_handovers, []
+
+    def none_found(geo, support, givers, *args, **kw):
+        calls.append(len(givers.grasps))
+        return [], real(geo, support, givers, *args, **kw)[1]
+
+    monkeypatch.setattr(gplan, "plan_handovers", none_found)
+    params = PlanParams(retry_factor=1)
+    plan_grasps(scene_cloud(P, L), arms=accept_all_arms(T12), T_b1_b2=T12, params=params)
+    n_with = len(calls)
+    calls.clear()
+    params = replace(params, handover_params=without_fallbacks(params.handover_params, ("shallow-holds",)))
+    plan_grasps(scene_cloud(P, L), arms=accept_all_arms(T12), T_b1_b2=T12, params=params)
+    assert n_with > len(calls) >= 1  # the shallow holds' search (and its redraw's) left out
+    with pytest.raises(InputError, match=r"leave_out.*unknown hand-over fallback.*shallow-holds"):
+        grasp_stage(tmp_path / "none", tmp_path / "none.npz", tmp_path / "out", leave_out=("shallow_holds",))

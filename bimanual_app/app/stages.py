@@ -54,12 +54,14 @@ def segment(cloud: Path, out: Path, calibration: Path, masks: Path | None, log: 
     _lines(log, report_lines(segment_stage(cloud, out, calibration=calibration, masks=masks, progress=progress)))
 
 
-def grasp(cloud: Path, segments: Path, calibration: Path, out: Path, log: Log) -> None:
-    """``bijcr grasp CLOUD --segments NPZ --calibration JSON --out OUT``: grasps.json / .png."""
+def grasp(cloud: Path, segments: Path, calibration: Path, out: Path, log: Log, leave_out: tuple = ()) -> None:
+    """``bijcr grasp CLOUD --segments NPZ --calibration JSON --out OUT``: grasps.json / .png (``leave_out``:
+    hand-over fallbacks not to try, ``grasping.HANDOVER_FALLBACKS``)."""
     from grasping import grasp_stage
     from grasping.cli import report_lines
 
-    st = grasp_stage(cloud, segments, out, calibration=calibration, log=lambda m: log(f"[grasp] {m}"))
+    st = grasp_stage(cloud, segments, out, calibration=calibration, log=lambda m: log(f"[grasp] {m}"),
+                     leave_out=tuple(leave_out))
     _lines(log, [f"warning: {p}" for p in st.warnings] + report_lines(st))
 
 

@@ -64,7 +64,7 @@ def stage_paths(work: str | Path) -> StagePaths:
 
 
 def ensure_stages(scene_path: Path, paths: StagePaths, timings: dict[str, float], quiet: bool = False,
-                  scene=None, masks: bool | None = None) -> list[str]:
+                  scene=None, masks: bool | None = None, leave_out: tuple = ()) -> list[str]:
     """Run ``calibrate`` / ``segment`` / ``grasp`` in-process for each missing output; returns the stages run.
 
     Each is the library call of its ``bijcr`` sub-command (:mod:`bimanual_app.app.stages`). ``timings``
@@ -84,7 +84,7 @@ def ensure_stages(scene_path: Path, paths: StagePaths, timings: dict[str, float]
              ("segment", [paths.segments], partial(S.segment, paths.cloud, paths.segments.parent, paths.calibration,
                                                    use_masks, progress=not quiet)),
              ("grasp", [paths.grasps], partial(S.grasp, paths.cloud, paths.segments, paths.calibration,
-                                               paths.grasps.parent))]
+                                               paths.grasps.parent, leave_out=tuple(leave_out)))]
     ran = []
     for name, outputs, run in steps:
         if name == "segment" and scene is not None and paths.calibration.exists():

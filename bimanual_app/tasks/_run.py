@@ -55,7 +55,9 @@ class TaskOptions:
     speed: float = 0.5
     compare_truth: bool = False  # also run the same plan in the ground-truth world (task.json "preview_truth")
     masks: bool | None = None  # segment with the scene's masks when it runs the stage; None: when it has them
-    leave_out: tuple[str, ...] = ()  # planner fallbacks not to try (tasks._planners.FALLBACKS): a measuring knob
+    # fallbacks not to try, a measuring knob: the planner's (tasks.FALLBACKS) and, where the task runs the grasp
+    # stage, the hand-over search's (grasping.HANDOVER_FALLBACKS)
+    leave_out: tuple[str, ...] = ()
 
 
 @dataclass
@@ -147,7 +149,8 @@ def run_task(opts: TaskOptions) -> TaskResult:
     staging = OutputDir(out)  # refuses a folder of foreign files before any work
     try:
         try:
-            ensure_stages(scene.path, paths, timings, quiet=opts.quiet, scene=scene, masks=opts.masks)
+            ensure_stages(scene.path, paths, timings, quiet=opts.quiet, scene=scene, masks=opts.masks,
+                          leave_out=tuple(n for n in opts.leave_out if n in _grasp_fallbacks()))
         except InputError as e:
             e.timings = timings  # what ran before the failure (the bench reports stage times)
             raise
@@ -305,14 +308,22 @@ def _plan_candidate(opts, motion_o, c, k: int, q_start, width_start, pts_o, up):
     return plan, timeline
 
 
+def _grasp_fallbacks() -> dict:
+    from grasping import HANDOVER_FALLBACKS
+
+    return HANDOVER_FALLBACKS
+
+
 def _check_leave_out(names) -> None:
-    """InputError for a name in ``TaskOptions.leave_out`` that is not one of the planner's fallbacks."""
+    """InputError for a name in ``TaskOptions.leave_out`` that is not one of the planner's fallbacks nor the
+    hand-over search's (``grasping.HANDOVER_FALLBACKS``: they act when the task runs the grasp stage)."""
     from ._planners import FALLBACKS
 
-    unknown = sorted(set(names) - set(FALLBACKS))
+    known = [*FALLBACKS, *_grasp_fallbacks()]
+    unknown = sorted(set(names) - set(known))
     if isinstance(names, str) or unknown:
-        raise InputError(Problem("", "leave_out", f"unknown planner fallback(s) {unknown or [names]}",
-                                 f"a tuple of names from {', '.join(FALLBACKS)}"))
+        raise InputError(Problem("", "leave_out", f"unknown fallback(s) {unknown or [names]}",
+                                 f"a tuple of names from {', '.join(known)}"))
 
 
 def _object_motion(opts, inputs, robot, o: int, rec: dict, s: _Search):
