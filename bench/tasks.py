@@ -2,7 +2,7 @@
 
     nice .venv/bin/python bench/tasks.py [--set tuning|heldout] [--quick] [--scenes N] [--fresh] [--no-save]
         [--with-masks] [--jobs N] [--address ADDR] [--seeds 2,11,16 | --first-seed S --scenes N]
-        [--tasks handover] [--modes pipeline,oracle] [--blas-kernel SkylakeX]
+        [--tasks handover] [--modes pipeline,oracle] [--blas-kernel SkylakeX] [--leave-out make-way]
 
 Two sets of ``bijcr synth`` scenes (8 views per arm, 5 objects, the emulator's "paper" noise), reported
 separately:

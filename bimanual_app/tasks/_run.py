@@ -309,6 +309,7 @@ def _plan_candidate(opts, motion_o, c, k: int, q_start, width_start, pts_o, up):
 
 
 def _grasp_fallbacks() -> dict:
+    """The hand-over search's fallbacks by name (``grasping.HANDOVER_FALLBACKS``; imported when needed)."""
     from grasping import HANDOVER_FALLBACKS
 
     return HANDOVER_FALLBACKS
