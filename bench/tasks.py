@@ -272,10 +272,9 @@ def parse_args(argv=None) -> argparse.Namespace:
 def leave_out_names(args: argparse.Namespace) -> tuple[str, ...]:
     """The fallbacks ``--leave-out`` names, checked against the planner's (``bimanual_app.tasks.FALLBACKS``) and
     the hand-over search's (``grasping.HANDOVER_FALLBACKS``)."""
-    from bimanual_app.tasks import FALLBACKS
-    from grasping import HANDOVER_FALLBACKS
+    from bimanual_app.tasks import fallback_names
 
-    known = [*FALLBACKS, *HANDOVER_FALLBACKS]
+    known = fallback_names()
     names = tuple(x for x in args.leave_out.split(",") if x)
     if set(names) - set(known):
         raise SystemExit(f"bench/tasks.py: --leave-out {args.leave_out}: unknown fallback(s) "

@@ -8,7 +8,8 @@ Public API (imported lazily, so ``bijcr --help`` loading ``bimanual_app.tasks.cl
     plan_joint_grasp(motion, JointChoice, q_start, width_start) -> TaskPlan
     plan_handover(motion, HandoverChoice, q_start, width_start, object_points) -> TaskPlan
     FALLBACKS: name -> what it does, the planner's fallbacks (TaskOptions.leave_out leaves them out; a plan
-        lists those it took in info["fallbacks"])
+        lists those it took in info["fallbacks"]); fallback_names(): every name leave_out takes (these, then
+        grasping.HANDOVER_FALLBACKS)
     TaskMotion: the motion layer for one task (IK, OMPL, Cartesian moves, validation, collision contexts)
     preview_plan(plan, inputs, robot, object_id, truth=False) -> PreviewResult
     check_calibration_scene(scene, calibration, path): refuses a calibration of another scene
@@ -21,7 +22,7 @@ from __future__ import annotations
 from bimanual_app.lazy import lazy_exports
 
 _EXPORTS = {
-    "run_task": "_run", "TaskOptions": "_run", "TaskResult": "_run",
+    "run_task": "_run", "TaskOptions": "_run", "TaskResult": "_run", "fallback_names": "_run",
     "TaskPlan": "_plan", "Phase": "_plan",
     "plan_joint_grasp": "_planners", "plan_handover": "_planners", "FALLBACKS": "_planners",
     "TaskMotion": "_motion", "PlanFailure": "_motion", "robot_points_mask": "_motion",

@@ -84,7 +84,7 @@ def ensure_stages(scene_path: Path, paths: StagePaths, timings: dict[str, float]
              ("segment", [paths.segments], partial(S.segment, paths.cloud, paths.segments.parent, paths.calibration,
                                                    use_masks, progress=not quiet)),
              ("grasp", [paths.grasps], partial(S.grasp, paths.cloud, paths.segments, paths.calibration,
-                                               paths.grasps.parent, leave_out=tuple(leave_out)))]
+                                               paths.grasps.parent, leave_out=leave_out))]
     ran = []
     for name, outputs, run in steps:
         if name == "segment" and scene is not None and paths.calibration.exists():

@@ -22,7 +22,7 @@ from bimanual_app.io_utils import InputError, Problem, to_jsonable, write_json
 
 from ._output import OutputDir
 
-__all__ = ["TaskOptions", "TaskResult", "run_task"]
+__all__ = ["TaskOptions", "TaskResult", "run_task", "fallback_names"]
 
 ARMS = ("primary", "secondary")
 MAX_FALLBACK_OBJECTS = 2  # without --object: objects tried after the best-scoring one cannot be planned
@@ -315,12 +315,17 @@ def _grasp_fallbacks() -> dict:
     return HANDOVER_FALLBACKS
 
 
-def _check_leave_out(names) -> None:
-    """InputError for a name in ``TaskOptions.leave_out`` that is not one of the planner's fallbacks nor the
-    hand-over search's (``grasping.HANDOVER_FALLBACKS``: they act when the task runs the grasp stage)."""
+def fallback_names() -> list[str]:
+    """The names ``TaskOptions.leave_out`` takes: the planner's fallbacks (``FALLBACKS``), then the hand-over
+    search's (``grasping.HANDOVER_FALLBACKS``: they act when the task runs the grasp stage)."""
     from ._planners import FALLBACKS
 
-    known = [*FALLBACKS, *_grasp_fallbacks()]
+    return [*FALLBACKS, *_grasp_fallbacks()]
+
+
+def _check_leave_out(names) -> None:
+    """InputError for a name in ``TaskOptions.leave_out`` that is not in :func:`fallback_names`."""
+    known = fallback_names()
     unknown = sorted(set(names) - set(known))
     if isinstance(names, str) or unknown:
         raise InputError(Problem("", "leave_out", f"unknown fallback(s) {unknown or [names]}",
