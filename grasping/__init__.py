@@ -12,6 +12,7 @@ Public API:
     write_grasps_json(path, plan) / plan_to_dict(plan) / draw_plan(path, plan, points, labels)
     rotate_about_approach(T_b_g)                        the same grasp turned 180 degrees about z
     grasp_stage(cloud, segments, out_dir, calibration=None, ...) -> GraspStage   (bijcr grasp / run)
+    lift_clear(collider, scene, lifts, T_b1_g, width, margin) -> (C,) bool   a gripper clear along sampled lifts
     HANDOVER_FALLBACKS: name -> what it does, the hand-over search's fallbacks (grasp_stage(leave_out=...))
 CLI: ``bijcr grasp SCENE_DIR_OR_CLOUD --segments DIR/segments.npz --out DIR [--calibration calibration.json]``.
 """
@@ -29,7 +30,7 @@ _EXPORTS = {
     "GripperModel": "_gripper", "GripperShape": "_gripper", "load_gripper": "_gripper",
     "Handover": "_handover", "HandoverParams": "_handover", "HANDOVER_FALLBACKS": "_handover",
     "SceneCloud": "_inputs", "b2b_sigma": "_inputs", "load_calibration": "_inputs", "load_cloud": "_inputs", "load_segments": "_inputs", "resolve_inputs": "_inputs", "scene_cloud": "_inputs",
-    "JointPair": "_joint",
+    "JointPair": "_joint", "lift_clear": "_joint",
     "ObjectGeometry": "_objects", "Support": "_objects", "check_graspable": "_objects", "estimate_support": "_objects", "object_geometry": "_objects",
     "draw_plan": "_output", "plan_to_dict": "_output", "write_grasps_json": "_output",
     "GraspPlan": "_plan", "ObjectPlan": "_plan", "PlanParams": "_plan", "plan_grasps": "_plan",
@@ -41,7 +42,7 @@ _EXPORTS = {
 __all__ = [
     "load_gripper", "GripperModel", "GripperShape", "plan_grasps", "PlanParams", "GraspPlan",
     "ObjectPlan", "sample_grasps", "SamplerParams", "GraspSet", "rotate_about_approach", "push_contacts",
-    "PushParams", "JointPair", "Handover", "HandoverParams", "make_arms", "Arm",
+    "PushParams", "JointPair", "lift_clear", "Handover", "HandoverParams", "make_arms", "Arm",
     "ArmGrasps", "reachable_grasps", "TwoArmCheck", "ArmReach", "ReachFilter", "ReachResult",
     "callable_filter", "pregrasp_pose", "GripperCollider", "SceneOctree", "grippers_collide", "grippers_distance",
     "SceneCloud", "scene_cloud", "load_cloud", "load_segments", "load_calibration", "b2b_sigma",

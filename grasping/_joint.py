@@ -25,10 +25,31 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ._arms import ArmGrasps, TwoArmCheck
-from ._collision import GripperCollider, grippers_collide
+from ._collision import GripperCollider, SceneOctree, grippers_collide
 from ._objects import ObjectGeometry, Support
 
-__all__ = ["JointPair", "PairLift", "joint_pairs", "spread_order"]
+__all__ = ["JointPair", "PairLift", "joint_pairs", "spread_order", "lift_clear", "LIFT_STAGES"]
+
+LIFT_STAGES = tuple(np.arange(1, 12) / 11)  # fractions of a lift where a gripper is checked (about 1 cm apart)
+
+
+def lift_clear(collider: GripperCollider, scene: SceneOctree, lifts, T_b1_g: np.ndarray, width: float,
+               margin: float, ok: np.ndarray | None = None, stages: tuple = LIFT_STAGES) -> np.ndarray:
+    """(C,) bool: along which of the C lifts ``lifts`` (:class:`~bimanual_app.kinematics.LiftCandidates`) the
+    gripper holding the object at ``T_b1_g`` (4,4), opened ``width`` m, keeps ``margin`` m from ``scene`` at
+    every one of ``stages`` (fractions of the way, :func:`~bimanual_app.kinematics.along`); only the lifts
+    ``ok`` (C,) bool are checked (default all)."""
+    from bimanual_app.kinematics import along
+
+    ok = np.ones(len(lifts), dtype=bool) if ok is None else np.asarray(ok, dtype=bool).copy()
+    T_b1_g = np.asarray(T_b1_g, dtype=np.float64).reshape(4, 4)
+    for s in stages:
+        idx = np.flatnonzero(ok)
+        if not len(idx):
+            break
+        T = along(lifts, s)[idx] @ T_b1_g
+        ok[idx] = ~collider.collides(scene, T, np.full(len(idx), float(width)), swept=False, margin=margin)
+    return ok
 
 
 @dataclass
@@ -49,11 +70,13 @@ class PairLift:
     """Whether both arms can lift an object together from a pair of grasps: the end poses of the lift that
     the task's planner samples (:func:`bimanual_app.kinematics._lift.lift_candidates`, here at the least lift
     ``lift_min`` only: any higher is the planner's choice), each arm's IK for its grasp carried along them
-    (:func:`bimanual_app.kinematics._lift.arms_ik`, once per grasp, cached), and the pair passes when both arms
-    follow one of them.
+    (:func:`bimanual_app.kinematics._lift.arms_ik`, once per grasp, cached), and, with a ``scene``, the
+    gripper clear of it (within ``margin``) along the way (the task's planner checks the arms
+    along the lift against its map as well; :func:`lift_clear`), and the pair passes when both arms follow one of them.
 
     solvers: arm name -> (IK solver with ``solve_many``, ``T_b_b1`` (4,4) the arm's base from b1);
-    centre: (3,) the object's centre in b1; up: (3,) the table normal in b1.
+    centre: (3,) the object's centre in b1; up: (3,) the table normal in b1; collider / scene: the gripper
+    collider and the scene octree without the object (None: IK only).
     """
 
     solvers: dict
@@ -62,6 +85,9 @@ class PairLift:
     lift_min: float = 0.105
     radius: float = 0.08
     seeds: int = 1  # IK seeds per lift stage: the previous stage's solution (a continuation)
+    collider: GripperCollider | None = None
+    scene: SceneOctree | None = None
+    margin: float = 0.003  # m: the task planner's contact margin
     _reach: dict = field(default_factory=dict, repr=False)  # (arm, grasp index, pose) -> (C,) bool
     _lifts: object = field(default=None, repr=False)  # the LiftCandidates
 
@@ -92,8 +118,16 @@ class PairLift:
         if key not in self._reach:
             solver, T_b_b1 = self.solvers[ag.arm]
             arm = LiftArm.from_solver(solver, T_b_b1, ag.q[i], self.seeds)
-            self._reach[key] = arms_ik({ag.arm: arm}, {ag.arm: ag.grasps.T_b1_g[i]}, self._candidates())[ag.arm][1]
+            ok = arms_ik({ag.arm: arm}, {ag.arm: ag.grasps.T_b1_g[i]}, self._candidates())[ag.arm][1]
+            self._reach[key] = self._clear(ag.grasps.T_b1_g[i], float(ag.grasps.width[i]), ok)
         return self._reach[key]
+
+    def _clear(self, T_b1_g: np.ndarray, width: float, ok: np.ndarray) -> np.ndarray:
+        """(C,) bool: ``ok`` (C,) where the gripper at ``T_b1_g`` (4,4), opened ``width``, stays clear of
+        ``scene`` along the lift (:func:`lift_clear`)."""
+        if self.scene is None or self.collider is None:
+            return ok
+        return lift_clear(self.collider, self.scene, self._candidates(), T_b1_g, width, self.margin, ok)
 
     def __call__(self, primary: ArmGrasps, i: int, secondary: ArmGrasps, j: int) -> bool:
         return bool(np.any(self.reach(primary, i) & self.reach(secondary, j)))

@@ -384,7 +384,7 @@ def _joint(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: 
     lifting = {name: lifting_arm(arm, support.up, params.joint_lift_check) for name, arm in arms.items()}
     rounds = [lifting, arms] if params.joint_lift_check > 0 and all(lifting.values()) else [arms]
     for r, round_arms in enumerate(rounds):
-        pairs = _joint_pairs(plan, support, collider, round_arms, check, params, long_side, push)
+        pairs = _joint_pairs(plan, support, collider, others, round_arms, check, params, long_side, push)
         plan.stats["joint_lift_checked"] = r == 0 and len(rounds) == 2
         if pairs:
             break
@@ -398,12 +398,15 @@ def _joint(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: 
                           f" ({len(push)} push contacts on its faces)")
 
 
-def _joint_pairs(plan: ObjectPlan, support: Support, collider: GripperCollider, arms: dict[str, Arm],
-                 check: TwoArmCheck | None, params: PlanParams, long_side: float, push) -> list[JointPair]:
+def _joint_pairs(plan: ObjectPlan, support: Support, collider: GripperCollider, others: SceneOctree,
+                 arms: dict[str, Arm], check: TwoArmCheck | None, params: PlanParams, long_side: float,
+                 push) -> list[JointPair]:
     """One round of ``_joint``: each arm's reachable push contacts and end pinches, and the pairs of them."""
     geo = plan.geometry
     pairs: list[JointPair] = []
-    lift = PairLift.for_arms(arms, geo.centre, support.up)  # pairs the arms can lift the object from first
+    # pairs the arms can lift the object from, their grippers clear of the scene, first
+    lift = PairLift.for_arms(arms, geo.centre, support.up, collider=collider, scene=others,
+                             margin=params.sampler.scene_margin)
     if len(push):
         for name, arm in arms.items():
             # each face gets its own reach budget; the faces that look towards this arm's base first

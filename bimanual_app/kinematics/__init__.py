@@ -17,6 +17,7 @@ Two arms holding one object (``_lift``, used by the grasp stage and the joint-gr
     arms_ik(arms {name: LiftArm}, S {name: T_b1_g}, candidates) -> {name: (Q, ok)}   (batched, staged IK)
     lift_costs(candidates, ik, arms, terms=LIFT_COSTS) -> {term: (N,)};  rank_lifts(...) -> (K,) best first
     object_motion(candidates, i) -> (K, 4, 4)   (the object's motion along candidate i, 1 cm steps)
+    along(candidates, s) -> (N, 4, 4)   (every candidate's motion at fraction s of its lift)
 
 Straight moves on one IK branch (``_path``, the task planner's Cartesian moves):
     line_poses(T0, T1, n=None) -> (n, 4, 4)   (a pose every WAYPOINT_STEP m and 0.05 rad, ends included)
@@ -31,6 +32,7 @@ from bimanual_app.kinematics._lift import (
     LIFT_COSTS,
     LiftArm,
     LiftCandidates,
+    along,
     arms_ik,
     lift_candidates,
     lift_costs,
@@ -39,7 +41,7 @@ from bimanual_app.kinematics._lift import (
 )
 from bimanual_app.kinematics._path import MAX_JOINT_JUMP, WAYPOINT_STEP, PathFailure, follow_poses, line_poses
 
-__all__ = ["IKResult", "IKSolver", "solve_ik", "LIFT_COSTS", "LiftArm", "LiftCandidates", "arms_ik",
+__all__ = ["IKResult", "IKSolver", "solve_ik", "LIFT_COSTS", "LiftArm", "LiftCandidates", "along", "arms_ik",
            "lift_candidates", "lift_costs", "object_motion", "rank_lifts", "MAX_JOINT_JUMP", "WAYPOINT_STEP",
            "PathFailure", "follow_poses", "line_poses"]
 

@@ -492,6 +492,12 @@ def _lift_strategies(P: _Pair, S: dict, q: dict, lift: float) -> Iterable[Strate
     arms = _lift_arms(P.motion, q)
     ik = arms_ik(arms, S, c)
     order = rank_lifts(c, ik, lift_costs(c, ik, arms))
+    if len(order):
+        clear = P.motion.grippers_clear(c, S, P.opening_hold)
+        if not clear[order].any():
+            raise PlanFailure("validation", f"every lift both arms follow ({len(order)}) brings a gripper within "
+                                            f"{P.motion.contact_margin * 1000:.0f} mm of the scene map")
+        order = order[clear[order]]
     if not len(order):
         short = [a for a in ARMS if not ik[a][1].any()]
         who = f"the {' and '.join(short)} arm" if short else "the two arms together"
