@@ -119,15 +119,16 @@ class PairLift:
             solver, T_b_b1 = self.solvers[ag.arm]
             arm = LiftArm.from_solver(solver, T_b_b1, ag.q[i], self.seeds)
             ok = arms_ik({ag.arm: arm}, {ag.arm: ag.grasps.T_b1_g[i]}, self._candidates())[ag.arm][1]
-            self._reach[key] = self._clear(ag.grasps.T_b1_g[i], float(ag.grasps.width[i]), ok)
+            self._reach[key] = self._clear(ag, i, ok)
         return self._reach[key]
 
-    def _clear(self, T_b1_g: np.ndarray, width: float, ok: np.ndarray) -> np.ndarray:
-        """(C,) bool: ``ok`` (C,) where the gripper at ``T_b1_g`` (4,4), opened ``width``, stays clear of
+    def _clear(self, ag: ArmGrasps, i: int, ok: np.ndarray) -> np.ndarray:
+        """(C,) bool: ``ok`` (C,) where ``ag``'s gripper holding the object by its grasp ``i`` stays clear of
         ``scene`` along the lift (:func:`lift_clear`)."""
         if self.scene is None or self.collider is None:
             return ok
-        return lift_clear(self.collider, self.scene, self._candidates(), T_b1_g, width, self.margin, ok)
+        return lift_clear(self.collider, self.scene, self._candidates(), ag.grasps.T_b1_g[i],
+                          float(ag.grasps.width[i]), self.margin, ok)
 
     def __call__(self, primary: ArmGrasps, i: int, secondary: ArmGrasps, j: int) -> bool:
         return bool(np.any(self.reach(primary, i) & self.reach(secondary, j)))

@@ -15,6 +15,7 @@ from bimanual_app.kinematics._lift import (
     object_motion,
     rank_lifts,
 )
+from grasping._joint import LIFT_STAGES
 
 UP = np.array([0.0, 0.0, 1.0])
 CENTRE = np.array([0.31, 0.01, 0.06])
@@ -253,7 +254,7 @@ def test_grasp_stage_lists_the_pairs_the_arms_can_lift_first(monkeypatch):
         seen.append(ok)
         return ok
 
-    monkeypatch.setattr(gplan.PairLift, "for_arms", classmethod(lambda cls, arms, centre, up: fake))
+    monkeypatch.setattr(gplan.PairLift, "for_arms", classmethod(lambda cls, arms, centre, up, **kw: fake))
     plan = plan_grasps(scene_cloud(P, L), arms=accept_all_arms(T12), T_b1_b2=T12,
                        params=PlanParams(handover=False, retry_factor=1))
     op = plan.objects[0]
@@ -264,3 +265,58 @@ def test_grasp_stage_lists_the_pairs_the_arms_can_lift_first(monkeypatch):
         p_ag, _ = op.pair_grasps(pair)
         assert pair.liftable == bool(p_ag.grasps.extra["contact"][pair.i_primary][1] > 0.0)
     assert op.stats["joint_push"]["liftable"] == seen.count(True)
+
+
+def _down_grasp(x, y, z):
+    T = np.eye(4)
+    T[:3, :3] = np.diag([1.0, -1.0, -1.0])  # approach straight down
+    T[:3, 3] = [x, y, z]
+    return T
+
+
+def test_lift_clear_keeps_the_lifts_whose_gripper_misses_the_scene():
+    """A plate 3 cm wide hangs 3 cm over a gripper holding the object from above: lifting straight up runs
+    the gripper into it; lifts shifted far enough sideways pass it, and each one kept is clear at every stage."""
+    from grasping import GripperCollider, SceneOctree, lift_clear, load_gripper
+
+    gripper = load_gripper("piper")
+    collider = GripperCollider(gripper, 0.0)
+    T = _down_grasp(*CENTRE)
+    top = float((T @ np.r_[0.0, 0.0, -0.18, 1.0])[2])  # over the flange (13.6 cm behind the fingertips)
+    xx, yy = np.meshgrid(np.linspace(-0.015, 0.015, 7), np.linspace(-0.15, 0.15, 61))
+    plate = np.c_[CENTRE[0] + xx.ravel(), CENTRE[1] + yy.ravel(), np.full(xx.size, top + 0.03)]
+    scene = SceneOctree(plate, 0.005)
+    c = lift_candidates(CENTRE, UP, 0.105, 0.105, radius=0.08, n_heights=1)
+    ok = lift_clear(collider, scene, c, T, 0.04, 0.003)
+    assert ok.shape == (len(c),) and ok.any() and not ok.all()
+    assert not collider.collides(scene, T[None], np.array([0.04]), swept=False, margin=0.003)[0]  # clear at rest
+    assert not ok[0]  # straight up
+    assert np.all(np.abs(c.shift[ok, 0]) > 0.03)  # only well to either side of the plate
+    for i in np.flatnonzero(ok):  # clear, margin included, at every stage the check names
+        for s in LIFT_STAGES:
+            Ts = along(c, s)[i] @ T
+            assert not collider.collides(scene, Ts[None], np.array([0.04]), swept=False, margin=0.003)[0]
+    only = lift_clear(collider, scene, c, T, 0.04, 0.003, ok=~ok)  # only the lifts asked about are checked
+    assert not only.any()
+    assert lift_clear(collider, SceneOctree(np.zeros((0, 3))), c, T, 0.04, 0.003).all()  # an empty scene
+
+
+def test_pair_lift_with_a_scene_needs_a_lift_both_grippers_pass():
+    from grasping import GripperCollider, SceneOctree, load_gripper
+    from grasping._joint import PairLift
+
+    p, s = _FakeSolver(CENTRE[0]), _FakeSolver(CENTRE[0])
+    solvers = {"primary": (p, np.eye(4)), "secondary": (s, np.eye(4))}
+    a, b = _grasps("primary", CENTRE[0], 0.05), _grasps("secondary", CENTRE[0], -0.05)
+    for g in (a, b):
+        g.grasps.T_b1_g[0][:3, :3] = np.diag([1.0, -1.0, -1.0])
+        g.grasps.width = np.array([0.04])
+    assert PairLift(solvers, CENTRE, UP)(a, 0, b, 0)  # IK only: a lift towards -x
+    # a wall of points on the -x side, where every lift both arms follow goes
+    yy, zz = np.meshgrid(np.linspace(-0.2, 0.2, 81), np.linspace(0.0, 0.4, 81))
+    wall = np.c_[np.full(yy.size, CENTRE[0] - 0.06), yy.ravel(), zz.ravel()]
+    collider = GripperCollider(load_gripper("piper"), 0.0)
+    blocked = PairLift(solvers, CENTRE, UP, collider=collider, scene=SceneOctree(wall, 0.005))
+    assert not blocked(a, 0, b, 0)
+    far = PairLift(solvers, CENTRE, UP, collider=collider, scene=SceneOctree(wall - [0.4, 0.0, 0.0], 0.005))
+    assert far(a, 0, b, 0)

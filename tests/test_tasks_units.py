@@ -682,3 +682,45 @@ def test_leave_out_names_only_the_planners_fallbacks():
     for bad in (("make_way",), "make-way"):
         with pytest.raises(InputError, match=r"leave_out.*unknown fallback.*make-way, .*shallow-holds"):
             run_task(TaskOptions("handover", "no-such-scene", leave_out=bad))
+
+
+def test_joint_lift_tries_only_lifts_that_keep_both_grippers_off_the_map(monkeypatch):
+    """The lift search drops the lifts along which a gripper comes within the contact margin of the map
+    (``TaskMotion.grippers_clear``, the grasp stage's check of its pairs) before any of them is tried."""
+    from bimanual_app.kinematics import lift_candidates
+    from bimanual_app.planning import default_ready
+    from bimanual_app.robots import load_robot
+    from bimanual_app.tasks._motion import TaskMotion
+    from bimanual_app.tasks._planners import plan_joint_grasp
+    from tests._task_fixtures import BAR, FIX_T_B1_B2, _cloud, box_surface_points, fixture_grasps
+
+    robot = load_robot("piper")
+    pts, labels = _cloud()
+    obj = box_surface_points(BAR["centre"], BAR["size"], 1500, visible_only=False)
+    choice = joint_candidates(fixture_grasps(robot), "grasps.json")[0]
+    q0 = {"primary": default_ready(robot), "secondary": default_ready(robot)}
+    w0 = {"primary": 0.0, "secondary": 0.0}
+    up = np.array([0.0, 0.0, 1.0])
+    S = {"primary": choice.primary.T_b1_g, "secondary": choice.secondary.T_b1_g}
+    widths = {"primary": 0.045, "secondary": 0.045}
+    # the check itself: a plate 3 cm over the primary's flange blocks lifting straight up, not every lift
+    motion = TaskMotion(robot, FIX_T_B1_B2, pts, obj, pts[labels == 1], up=up)
+    c = lift_candidates(obj.mean(axis=0), up, 0.12, 0.105, n_heights=2)
+    assert motion.grippers_clear(c, S, widths).all()
+    flange = S["primary"] @ np.r_[0.0, 0.0, -0.14, 1.0]
+    xx, yy = np.meshgrid(np.linspace(-0.02, 0.02, 9), np.linspace(-0.02, 0.02, 9))
+    plate = np.c_[flange[0] + xx.ravel(), flange[1] + yy.ravel(), np.full(xx.size, flange[2] + 0.07)]
+    blocked = TaskMotion(robot, FIX_T_B1_B2, np.vstack([pts, plate]), obj, pts[labels == 1], up=up)
+    ok = blocked.grippers_clear(c, S, widths)
+    assert not ok[0] and ok.any()  # straight up (the first candidate) is not clear
+
+    def plan(clear):
+        m = TaskMotion(robot, FIX_T_B1_B2, pts, obj, pts[labels == 1], up=up)
+        monkeypatch.setattr(m, "grippers_clear", lambda lifts, S, openings: clear(lifts))
+        return plan_joint_grasp(m, choice, q0, w0)
+
+    full = plan(lambda lifts: np.ones(len(lifts), bool)).info["object_motion"]["lift_m"]
+    lower = plan(lambda lifts: lifts.height < lifts.height.max() - 1e-6)  # none of the highest lifts is clear
+    assert lower.info["object_motion"]["lift_m"] < full - 1e-3
+    with pytest.raises(PlanFailure, match="brings a gripper within 3 mm of the scene map"):
+        plan(lambda lifts: np.zeros(len(lifts), bool))
