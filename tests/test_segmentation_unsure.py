@@ -62,25 +62,6 @@ def test_unsure_sides_join_their_own_segment_down_to_the_table():
         join_unsure(P, labels, unsure[:-1], P[:, 2], 0.005)
 
 
-def test_a_tall_boxs_side_does_not_join_the_lower_neighbour_whose_rim_it_passes():
-    # a tall box (top at 10 cm, label 0) and a low one beside it (top at 4 cm, label 1) whose rim is 4 mm from
-    # the tall box's unsure side: down the side, the low box's rim is the nearer sure point from 4 to 7 cm
-    grid = np.arange(0.0, 0.03, 0.004)
-    top0 = np.array([[x, y, 0.10] for x in grid for y in grid])
-    top1 = np.array([[0.035 + x, y, 0.04] for x in grid for y in grid])
-    side = np.concatenate([_column(0.031, y, 0.006, 0.098) for y in grid])
-    P = np.concatenate([top0, top1, side])
-    labels = np.r_[np.zeros(len(top0)), np.ones(len(top1)), -np.ones(len(side))].astype(np.int32)
-    unsure = np.r_[np.zeros(len(top0) + len(top1), bool), np.ones(len(side), bool)]
-    s = slice(len(top0) + len(top1), None)
-    above = P[s][:, 2] > 0.04 + 0.004  # higher than the low box's top
-    out = join_unsure(P, labels, unsure, P[:, 2], min_height=0.005)
-    assert np.all(out[s][above] == 0)
-    anyhow = join_unsure(P, labels, unsure, P[:, 2], min_height=0.005, rise=np.inf)  # nearest chain only
-    assert np.any(anyhow[s][above] == 1)
-    assert np.all(out[s][~above] == anyhow[s][~above])  # below its top, the nearer of the two
-
-
 def test_segment_keeps_unsure_points_out_of_the_graph():
     from _seg_fixtures import make_table_scene
 
