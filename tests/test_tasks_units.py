@@ -522,22 +522,30 @@ def test_handover_secondary_in_the_primarys_way_turns_aside_first():
     assert plan.phases[0].name == "reach" and "make_way_rad" not in plan.info
 
 
-def test_joint_lift_falls_back_to_the_least_lift_at_the_top_of_the_reach(monkeypatch):
-    """Where the arms cannot follow the object higher than 11 cm (both at the top of their reach: bench
-    seed 3's 47 cm carton held at its ends), the joint grasp lifts ``LIFT_MIN`` (10.5 cm: the 10 cm the
-    task needs, with 5 mm to spare) rather than fail; lower than that it fails."""
+def _bar_pair():
+    """The fixture's bar and its pinch pair: (robot, cloud points, labels, the bar's points, the joint choice,
+    start configurations, start openings)."""
     from bimanual_app.planning import default_ready
     from bimanual_app.robots import load_robot
-    from bimanual_app.tasks._motion import PlanFailure, TaskMotion
-    from bimanual_app.tasks._planners import LIFT_MIN, plan_joint_grasp
-    from tests._task_fixtures import BAR, FIX_T_B1_B2, _cloud, box_surface_points, fixture_grasps
+    from tests._task_fixtures import BAR, _cloud, box_surface_points, fixture_grasps
 
     robot = load_robot("piper")
     pts, labels = _cloud()
     obj = box_surface_points(BAR["centre"], BAR["size"], 1500, visible_only=False)
     choice = joint_candidates(fixture_grasps(robot), "grasps.json")[0]
     q0 = {"primary": default_ready(robot), "secondary": default_ready(robot)}
-    w0 = {"primary": 0.0, "secondary": 0.0}
+    return robot, pts, labels, obj, choice, q0, {"primary": 0.0, "secondary": 0.0}
+
+
+def test_joint_lift_falls_back_to_the_least_lift_at_the_top_of_the_reach(monkeypatch):
+    """Where the arms cannot follow the object higher than 11 cm (both at the top of their reach: bench
+    seed 3's 47 cm carton held at its ends), the joint grasp lifts ``LIFT_MIN`` (10.5 cm: the 10 cm the
+    task needs, with 5 mm to spare) rather than fail; lower than that it fails."""
+    from bimanual_app.tasks._motion import PlanFailure, TaskMotion
+    from bimanual_app.tasks._planners import LIFT_MIN, plan_joint_grasp
+    from tests._task_fixtures import FIX_T_B1_B2
+
+    robot, pts, labels, obj, choice, q0, w0 = _bar_pair()
 
     def plan_with_reach_up_to(top, leave_out=()):
         motion = TaskMotion(robot, FIX_T_B1_B2, pts, obj, pts[labels == 1], up=np.array([0.0, 0.0, 1.0]),
@@ -688,18 +696,11 @@ def test_joint_lift_tries_only_lifts_that_keep_both_grippers_off_the_map(monkeyp
     """The lift search drops the lifts along which a gripper comes within the contact margin of the map
     (``TaskMotion.grippers_clear``, the grasp stage's check of its pairs) before any of them is tried."""
     from bimanual_app.kinematics import lift_candidates
-    from bimanual_app.planning import default_ready
-    from bimanual_app.robots import load_robot
     from bimanual_app.tasks._motion import TaskMotion
     from bimanual_app.tasks._planners import plan_joint_grasp
-    from tests._task_fixtures import BAR, FIX_T_B1_B2, _cloud, box_surface_points, fixture_grasps
+    from tests._task_fixtures import FIX_T_B1_B2
 
-    robot = load_robot("piper")
-    pts, labels = _cloud()
-    obj = box_surface_points(BAR["centre"], BAR["size"], 1500, visible_only=False)
-    choice = joint_candidates(fixture_grasps(robot), "grasps.json")[0]
-    q0 = {"primary": default_ready(robot), "secondary": default_ready(robot)}
-    w0 = {"primary": 0.0, "secondary": 0.0}
+    robot, pts, labels, obj, choice, q0, w0 = _bar_pair()
     up = np.array([0.0, 0.0, 1.0])
     S = {"primary": choice.primary.T_b1_g, "secondary": choice.secondary.T_b1_g}
     widths = {"primary": 0.045, "secondary": 0.045}
