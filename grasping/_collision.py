@@ -25,15 +25,18 @@ __all__ = ["SceneOctree", "GripperCollider", "grippers_collide", "grippers_colli
 
 
 class SceneOctree:
-    """A coal octree of points (N, 3) at ``resolution`` metres (empty point sets give a map that never collides)."""
+    """A coal octree of points (N, 3) at ``resolution`` metres (empty point sets give a map that never collides).
+    ``octree``: one already built of these points at this resolution (a task's ``SceneMap``), used as it is."""
 
-    def __init__(self, points: np.ndarray, resolution: float = 0.004):
+    def __init__(self, points: np.ndarray, resolution: float = 0.004, octree=None):
         import coal
 
         P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         self.points = P
         self.resolution = float(resolution)
-        self.octree = coal.makeOctree(P, self.resolution) if len(P) else None
+        if octree is None and len(P):
+            octree = coal.makeOctree(P, self.resolution)
+        self.octree = octree if len(P) else None
         self._counts = None  # (origin, cell, prefix sums of occupied cells), built on the first query
 
     GRID_CELL = 0.01  # m, the broad phase's cells (coarser for scenes so large that the grid would pass MAX_CELLS)

@@ -714,10 +714,12 @@ def test_joint_lift_tries_only_lifts_that_keep_both_grippers_off_the_map(monkeyp
     blocked = TaskMotion(robot, FIX_T_B1_B2, np.vstack([pts, plate]), obj, pts[labels == 1], up=up)
     ok = blocked.grippers_clear(c, S, widths)
     assert not ok[0] and ok.any()  # straight up (the first candidate) is not clear
+    assert np.array_equal(blocked.grippers_clear(c, S, widths, among=np.array([0, 5])),
+                          np.isin(np.arange(len(c)), [0, 5]) & ok)  # only those asked about
 
     def plan(clear):
         m = TaskMotion(robot, FIX_T_B1_B2, pts, obj, pts[labels == 1], up=up)
-        monkeypatch.setattr(m, "grippers_clear", lambda lifts, S, openings: clear(lifts))
+        monkeypatch.setattr(m, "grippers_clear", lambda lifts, S, openings, among: clear(lifts))
         return plan_joint_grasp(m, choice, q0, w0)
 
     full = plan(lambda lifts: np.ones(len(lifts), bool)).info["object_motion"]["lift_m"]

@@ -427,27 +427,25 @@ class TaskMotion:
                         f"(near {np.round(Pk[inside][bad][0], 3).tolist()})"]
         return []
 
-    def grippers_clear(self, lifts, S: dict, openings: dict) -> np.ndarray:
+    def grippers_clear(self, lifts, S: dict, openings: dict, among: np.ndarray | None = None) -> np.ndarray:
         """(C,) bool: the lifts ``lifts`` (:class:`~bimanual_app.kinematics.LiftCandidates`, C of them) along
         which every gripper holding the object (arm -> ``S`` (4,4) its pose in b1, opened ``openings[arm]``
         m) keeps ``contact_margin`` from the cut map (``grasping.lift_clear``: the gripper's shapes about
-        every centimetre of the way, before any IK). The grasp stage checks its pairs' lifts the same way."""
-        from grasping import lift_clear
+        every centimetre of the way, before any IK); only the lifts ``among`` (indices) are checked (default
+        all). The grasp stage checks its pairs' lifts the same way."""
+        from grasping import GripperCollider, SceneOctree, lift_clear, load_gripper
 
-        collider, scene = self._gripper_scene()
-        ok = np.ones(len(lifts), dtype=bool)
+        if getattr(self, "_gripper_collider_", None) is None:
+            self._gripper_collider_ = GripperCollider(load_gripper(self.robot.name), 0.0)
+        if getattr(self, "_gripper_scene_", (None, None))[0] is not self.cut_map:  # the map's own octree
+            m = self.cut_map
+            self._gripper_scene_ = (m, SceneOctree(m.points, m.resolution, octree=m.octree))
+        ok = np.zeros(len(lifts), dtype=bool)
+        ok[np.arange(len(lifts)) if among is None else among] = True
         for a, T in S.items():
-            ok = lift_clear(collider, scene, lifts, T, openings[a], self.contact_margin, ok)
+            ok = lift_clear(self._gripper_collider_, self._gripper_scene_[1], lifts, T, openings[a],
+                            self.contact_margin, ok)
         return ok
-
-    def _gripper_scene(self):
-        """The grasp stage's gripper collider and an octree of the cut map (rebuilt when the map is cut)."""
-        from grasping import GripperCollider, SceneOctree, load_gripper
-
-        if getattr(self, "_gripper_scene_", (None, None))[1] is not self.cut_map:
-            octree = SceneOctree(self.cut_map.points, MAP_RESOLUTION)
-            self._gripper_scene_ = (GripperCollider(load_gripper(self.robot.name), 0.0), self.cut_map, octree)
-        return self._gripper_scene_[0], self._gripper_scene_[2]
 
     @property
     def _cut_tree(self):

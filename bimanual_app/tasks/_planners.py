@@ -493,7 +493,7 @@ def _lift_strategies(P: _Pair, S: dict, q: dict, lift: float) -> Iterable[Strate
     ik = arms_ik(arms, S, c)
     order = rank_lifts(c, ik, lift_costs(c, ik, arms))
     if len(order):
-        clear = P.motion.grippers_clear(c, S, P.opening_hold)
+        clear = P.motion.grippers_clear(c, S, P.opening_hold, among=order)  # those both arms follow
         if not clear[order].any():
             raise PlanFailure("validation", f"every lift both arms follow ({len(order)}) brings a gripper within "
                                             f"{P.motion.contact_margin * 1000:.0f} mm of the scene map")
