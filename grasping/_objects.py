@@ -270,10 +270,9 @@ def _add_unseen(geo: ObjectGeometry, Q: np.ndarray, Nq: np.ndarray, gap: float) 
 
 CYL_RADIUS = (0.012, 0.06)  # m: radii of the cans, bottles and mugs completed as cylinders
 CYL_MAX_RMS = 0.06  # ... whose side points fit a circle within this share of its radius (RMS) ...
-# ... over an arc this wide: seen over more, the box of the points already spans (nearly) the diameter and
-# the symmetric completion suffices; completing those anyway cost cans near the stroke limit their grasps
-# (the added arc a little outside the mirrored points, trusted less by the score)
-CYL_ARC = (np.deg2rad(90.0), np.deg2rad(210.0))
+# ... over an arc at least this wide (however much more of the round was seen: the points' own box of a can
+# seen over 210-280 degrees falls short of its diameter and sits off its centre)
+CYL_MIN_ARC = np.deg2rad(90.0)
 CYL_MIN_RADIAL = 0.9  # ... with normals this well along the radius (mean |cos|; a box's corner: ~0.7)
 # A noisier arc (over CYL_MAX_RMS) is completed when its RMS is within this (m; the bench's pipeline clouds:
 # 1-3 mm), more of its side points lie on the circle than on the box's sides, and its top disc is closed
@@ -503,14 +502,38 @@ def _radial_normals(geo: ObjectGeometry, arc: _SideArc) -> bool:
 
 def _unseen_arc(arc: _SideArc) -> tuple[float, float] | None:
     """(start angle, span) of the unseen arc: the largest gap between the points' angles; None when the
-    points do not cover an arc of CYL_ARC."""
+    points cover less than CYL_MIN_ARC."""
     ang = np.sort(np.arctan2(arc.rel[:, 1], arc.rel[:, 0]))
     gaps = np.diff(np.r_[ang, ang[0] + 2 * np.pi])
     k = int(np.argmax(gaps))
-    covered = 2 * np.pi - float(gaps[k])
-    if not (CYL_ARC[0] <= covered <= CYL_ARC[1]):
+    if 2 * np.pi - float(gaps[k]) < CYL_MIN_ARC:
         return None
     return ang[k], gaps[k]
+
+
+def _on_circle(geo: ObjectGeometry, arc: _SideArc, support: Support) -> ObjectGeometry:
+    """``geo`` with its seen surface laid on the fitted circle: side points within ``PRIMITIVE_TOL`` of it, and
+    any point up to that far outside it (the top's rim), moved onto it along the radius (side normals radial).
+
+    The sampler's contact width is the extent of the points between the fingers, and the points' noise and
+    the fused views' depth blur widen it by millimetres a side (a 6.5 cm can came out past the 66 mm the
+    stroke takes): the fitted circle places the can's surface to about a millimetre, its points do not."""
+    e1, e2 = arc.e1, arc.e2
+    P = geo.points
+    rel = np.stack([P @ e1, P @ e2], axis=1) - arc.c
+    d = np.linalg.norm(rel, axis=1)
+    side = geo.observed & (np.abs(geo.normals @ support.up) < 0.3)
+    move = geo.observed & (d > 1e-9) & (np.where(side, np.abs(d - arc.r), d - arc.r) <= PRIMITIVE_TOL)
+    move &= side | (d > arc.r)
+    if not move.any():
+        return geo
+    radial = rel[move] / d[move, None]
+    step = (arc.r - d[move])[:, None] * radial
+    Q, N = P.copy(), geo.normals.copy()
+    Q[move] += step[:, :1] * e1 + step[:, 1:] * e2
+    rs = move & side
+    N[rs] = (rel[rs, :1] / d[rs, None]) * e1 + (rel[rs, 1:] / d[rs, None]) * e2
+    return ObjectGeometry(geo.id, geo.n_points, Q, N, geo.T_b1_box, geo.extent, geo.centre, geo.voxel, geo.observed)
 
 
 def _cylinder_box(geo: ObjectGeometry, out: ObjectGeometry, arc: _SideArc, up: np.ndarray) -> ObjectGeometry:
@@ -543,15 +566,17 @@ def complete_cylinder(geo: ObjectGeometry, support: Support, bottom: float = 0.0
     deep as the cylinder, so the turned points land on the seen ones (a 7.5 cm can came out as a 3.5 cm
     shell, its grasps sized for that, and the fingers met the real can). A least-squares circle through
     the seen side points gives the real centre and radius; the unseen arc is added (``observed=False``),
-    from ``bottom`` (the elevation of the box's bottom) to the top, and the box grows to hold it.
+    from ``bottom`` (the elevation of the box's bottom) to the top, the seen surface is laid on the circle
+    (:func:`_on_circle`: its noise would widen the grasps' contact width) and the box is the circle's square.
 
     The circle: the algebraic fit (:func:`fit_circle`) refined geometrically (:func:`refine_circle`).
     Completed only when the side points fit it closely (the algebraic fit within ``CYL_MAX_RMS`` of the
     radius; or, on a noisier cloud, the refined one within ``CYL_NOISY_RMS`` with more side points on the
     circle than on the box's sides and a closed top disc, ``CYL_MIN_TOP``), keep to it in every third of
     the height (``CYL_BAND_OFF``), the radius is a graspable cylinder's (``CYL_RADIUS``), the points cover
-    an arc of ``CYL_ARC`` about the centre, and their normals point along the radius (``CYL_MIN_RADIAL``):
-    a box's corner or an irregular toy fits none of these. Returns ``geo`` unchanged otherwise.
+    an arc of at least ``CYL_MIN_ARC`` about the centre, their normals point along the radius (``CYL_MIN_RADIAL``)
+    and the points' box lies within the circle's square (``PRIMITIVE_TOL`` a side): a box's corner, an irregular
+    toy or a can with a piece of its neighbour fits none of these. Returns ``geo`` unchanged otherwise.
     """
     up = support.up
     arc = _side_arc(geo, support)
@@ -567,21 +592,19 @@ def complete_cylinder(geo: ObjectGeometry, support: Support, bottom: float = 0.0
     if not _radial_normals(geo, arc):
         return geo
     gap = _unseen_arc(arc)
-    if gap is None:
-        return geo
+    if gap is None or float(np.max(geo.extent[:2])) > 2 * (arc.r + PRIMITIVE_TOL):
+        return geo  # (or the segment is more than the can: a neighbour's piece in it, as primitive_fit says)
+    out = _on_circle(geo, arc, support)
     step = geo.voxel / arc.r
     a_new = gap[0] + np.arange(step, gap[1] - 0.5 * step, step)
     zs = np.arange(bottom + 0.5 * geo.voxel, top, geo.voxel)
-    if not len(a_new) or not len(zs):
-        return geo
-    ring = np.stack([np.cos(a_new), np.sin(a_new)], axis=1)
-    e1, e2 = arc.e1, arc.e2
-    base = (arc.c[0] + arc.r * ring[:, :1]) * e1 + (arc.c[1] + arc.r * ring[:, 1:]) * e2  # (A, 3) in the plane through 0
-    Q = (base[:, None, :] + (support.height + zs)[None, :, None] * up).reshape(-1, 3)
-    Nq = np.repeat(ring[:, :1] * e1 + ring[:, 1:] * e2, len(zs), axis=0)
-    out = _add_unseen(geo, Q, Nq, 1.5 * geo.voxel)
-    if out is geo:
-        return geo
+    if len(a_new) and len(zs):
+        ring = np.stack([np.cos(a_new), np.sin(a_new)], axis=1)
+        e1, e2 = arc.e1, arc.e2
+        base = (arc.c[0] + arc.r * ring[:, :1]) * e1 + (arc.c[1] + arc.r * ring[:, 1:]) * e2  # (A, 3) through 0
+        Q = (base[:, None, :] + (support.height + zs)[None, :, None] * up).reshape(-1, 3)
+        Nq = np.repeat(ring[:, :1] * e1 + ring[:, 1:] * e2, len(zs), axis=0)
+        out = _add_unseen(out, Q, Nq, 1.5 * geo.voxel)
     return _cylinder_box(geo, out, arc, up)
 
 
