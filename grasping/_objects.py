@@ -595,17 +595,23 @@ def complete_cylinder(geo: ObjectGeometry, support: Support, bottom: float = 0.0
     if gap is None or float(np.max(geo.extent[:2])) > 2 * (arc.r + PRIMITIVE_TOL):
         return geo  # (or the segment is more than the can: a neighbour's piece in it, as primitive_fit says)
     out = _on_circle(geo, arc, support)
-    step = geo.voxel / arc.r
-    a_new = gap[0] + np.arange(step, gap[1] - 0.5 * step, step)
-    zs = np.arange(bottom + 0.5 * geo.voxel, top, geo.voxel)
-    if len(a_new) and len(zs):
-        ring = np.stack([np.cos(a_new), np.sin(a_new)], axis=1)
-        e1, e2 = arc.e1, arc.e2
-        base = (arc.c[0] + arc.r * ring[:, :1]) * e1 + (arc.c[1] + arc.r * ring[:, 1:]) * e2  # (A, 3) through 0
-        Q = (base[:, None, :] + (support.height + zs)[None, :, None] * up).reshape(-1, 3)
-        Nq = np.repeat(ring[:, :1] * e1 + ring[:, 1:] * e2, len(zs), axis=0)
+    Q, Nq = _arc_points(arc, gap, np.arange(bottom + 0.5 * geo.voxel, top, geo.voxel), geo.voxel, support)
+    if len(Q):
         out = _add_unseen(out, Q, Nq, 1.5 * geo.voxel)
     return _cylinder_box(geo, out, arc, up)
+
+
+def _arc_points(arc: _SideArc, gap: tuple[float, float], zs: np.ndarray, step: float,
+                support: Support) -> tuple[np.ndarray, np.ndarray]:
+    """Points (K, 3) and outward normals (K, 3) on the circle's arc ``gap`` (start angle, span), ``step`` m
+    apart along it, at the elevations ``zs`` (Z,) above the table."""
+    da = step / arc.r
+    a_new = gap[0] + np.arange(da, gap[1] - 0.5 * da, da)
+    ring = np.stack([np.cos(a_new), np.sin(a_new)], axis=1)
+    e1, e2, up = arc.e1, arc.e2, support.up
+    base = (arc.c[0] + arc.r * ring[:, :1]) * e1 + (arc.c[1] + arc.r * ring[:, 1:]) * e2  # (A, 3) through 0
+    Q = (base[:, None, :] + (support.height + zs)[None, :, None] * up).reshape(-1, 3)
+    return Q, np.repeat(ring[:, :1] * e1 + ring[:, 1:] * e2, len(zs), axis=0)
 
 
 def complete_by_symmetry(geo: ObjectGeometry, support: Support, gap: float | None = None) -> ObjectGeometry:
