@@ -727,3 +727,38 @@ def test_joint_lift_tries_only_lifts_that_keep_both_grippers_off_the_map(monkeyp
     assert lower.info["object_motion"]["lift_m"] < full - 1e-3
     with pytest.raises(PlanFailure, match="brings a gripper within 3 mm of the scene map"):
         plan(lambda lifts: np.zeros(len(lifts), bool))
+
+
+def test_a_gripper_whose_fingers_would_open_into_the_map_where_it_stands_opens_at_its_goal():
+    """A few points beside the primary's closed fingers at the start (what the start's clean-up of the map
+    kept): opened there, the fingers meet them. The reach is planned with the gripper as it is and it opens
+    at its pre-grasp, a phase of its own checked open (``open-at-goal``); left out, the start is not valid."""
+    from bimanual_app.tasks._motion import TaskMotion
+    from bimanual_app.tasks._planners import plan_joint_grasp
+    from tests._task_fixtures import FIX_T_B1_B2
+
+    robot, pts, labels, obj, choice, q0, w0 = _bar_pair()
+    up = np.array([0.0, 0.0, 1.0])
+    T = TaskMotion(robot, FIX_T_B1_B2, pts, obj, pts[labels == 1], up=up).tcp_pose("primary", q0["primary"])
+    g = np.linspace(-0.004, 0.004, 3)
+    X, Z = np.meshgrid(g, g)
+    stray = (T @ np.c_[X.ravel(), np.full(X.size, 0.035), Z.ravel() - 0.01, np.ones(X.size)].T).T[:, :3]
+
+    def motion(leave_out=()):
+        return TaskMotion(robot, FIX_T_B1_B2, np.vstack([pts, stray]), obj, pts[labels == 1], up=up,
+                          leave_out=leave_out)
+
+    m = motion()
+    with m.context("map", openings={"primary": 0.0, "secondary": 0.0}):
+        assert not m.problems(q0)
+    with m.context("map", openings={"primary": 0.03, "secondary": 0.0}):
+        assert m.problems(q0)
+    plan = plan_joint_grasp(m, choice, q0, w0)
+    assert "open-at-goal" in plan.info["fallbacks"]
+    move, opening = plan.phases[0], plan.phases[1]
+    assert move.name == opening.name == "reach" and opening.planner == "gripper"
+    assert np.all(move.trajectories["primary"].gripper == 0.0)
+    assert opening.trajectories["primary"].gripper[-1] > 0.03
+    assert np.ptp(opening.trajectories["primary"].q, axis=0).max() == 0.0  # still while it opens
+    with pytest.raises(PlanFailure, match="start configuration is not valid"):
+        plan_joint_grasp(motion(leave_out=("open-at-goal",)), choice, q0, w0)

@@ -48,6 +48,8 @@ FALLBACKS = {
     "carry-padding": "the carried object's box shrunk where no lift ends clear of the free-motion margin",
     "receiver-back-off": "the receiver's pre-grasp 2 or 4 cm further back, or with the carried object's box shrunk",
     "skip-home": "the giver stays backed off where its start pose meets the object the receiver holds",
+    "open-at-goal": "a gripper whose fingers, opened where it stands, would meet the map moves as it is and opens "
+                    "at its goal",
 }
 
 LIFT = 0.15  # m the joint grasp lifts the object (>= 10 cm needed)
@@ -84,6 +86,50 @@ def _jt(times, q, widths):
     times = np.asarray(times, dtype=np.float64)
     w = np.broadcast_to(np.asarray(widths, dtype=np.float64), times.shape).copy()
     return JointTrajectory(times, np.asarray(q, dtype=np.float64), w)
+
+
+def _opened_at_end(tr, w0, w1):
+    """A JointTrajectory of ``tr`` (``_Traj``) at width ``w0``, then still at its end while the gripper goes to
+    ``w1`` (CLOSE_S)."""
+    times = np.concatenate([tr.times, tr.times[-1] + np.array([0.5 * CLOSE_S, CLOSE_S])])
+    return _jt(times, np.concatenate([tr.q, [tr.q[-1], tr.q[-1]]]),
+               np.r_[np.full(len(tr.times), w0), 0.5 * (w0 + w1), w1])
+
+
+def _free_opening(motion: TaskMotion, plan: TaskPlan, arms: list, q_now: dict, goals: list[dict], ctx,
+                  w_from: dict, w_to: dict) -> list[dict]:
+    """The free motion of ``arms`` from ``q_now`` to one of ``goals`` (arm -> (J,)) while each of their
+    grippers goes from ``w_from`` to ``w_to`` (arm -> width; ``ctx(openings)`` is the collision context at
+    those openings), as phases' trajectories (arm -> JointTrajectory): the motion, and where the grippers
+    open at the goal, their opening there.
+
+    The grippers open on the way, the motion checked at the wider of the two widths all along. Where the
+    start is not free with them open but is as they are (the fingers, opened where the arm stands, would
+    meet the map: points the start's clean-up of the map kept), they move as they are, checked at
+    ``w_from``, and open at a goal that is free with them open (fallback ``open-at-goal``)."""
+    wide = {a: max(w_from[a], w_to[a]) for a in w_from}
+    with ctx(wide):
+        start_open = not motion.problems(q_now)
+        open_goals = [g for g in goals if not motion.problems({**q_now, **g})]
+    with ctx(w_from):
+        start_as_is = not motion.problems(q_now)
+    if start_open or not start_as_is or not open_goals or not _fallback(motion, "open-at-goal"):
+        with ctx(wide):
+            tr = motion.plan_free(arms, q_now, goals)
+        return [{a: _jt(tr[a].times, tr[a].q, _ramp(tr[a].times, w_from[a], w_to[a])) for a in arms}]
+    with ctx(w_from):
+        tr = motion.plan_free(arms, q_now, open_goals)
+    _used(plan, "open-at-goal")
+    return [{a: _jt(tr[a].times, tr[a].q, w_from[a]) for a in arms},
+            {a: _still(tr[a].q[-1], w_from[a], w_to[a]) for a in arms}]
+
+
+def _add_opening(plan: TaskPlan, name: str, parts: list[dict], note: str) -> None:
+    """The phases of :func:`_free_opening` added to ``plan`` under ``name`` (an opening at the goal is a
+    phase of its own: the plan's validation takes each phase's widest opening)."""
+    plan.add(Phase(name, parts[0], note, "ompl"))
+    for jts in parts[1:]:
+        plan.add(Phase(name, jts, "opening at the goal (the fingers met the map where the arm stood)", "gripper"))
 
 
 def _reversed(tr, widths):
@@ -408,9 +454,9 @@ def _joint_reach(P: _Pair, plan: TaskPlan, q_start: dict, width_start: dict) -> 
                                  G[a].T_b1_g) for a in ARMS}
         goals = [{"primary": s1, "secondary": s2} for s1 in sols["primary"][:3] for s2 in sols["secondary"][:3]]
         goals = [g for g in goals if not motion.problems(g)] or goals[:1]
-        tr = motion.plan_free(list(ARMS), q_start, goals)
-    plan.add(Phase("reach", {a: _jt(tr[a].times, tr[a].q, _ramp(tr[a].times, width_start[a], P.w_open[a]))
-                             for a in ARMS}, "both grippers to their pre-grasps, opening", "ompl"))
+    parts = _free_opening(motion, plan, list(ARMS), q_start, goals, lambda op: motion.context("map", openings=op),
+                          width_start, P.w_open)
+    _add_opening(plan, "reach", parts, "both grippers to their pre-grasps, opening")
     return pre
 
 
@@ -737,9 +783,10 @@ def _handover_pick(H: _Handover, plan: TaskPlan, at: list) -> np.ndarray:
                                                          [pick.q_pre, H.q_start[H.g], pick.q]),
                              pre_pick, pick.T_b1_g)
         goals = [{H.g: s} for s in sols[:4]]
-        tr = motion.plan_free([H.g], H.q_start, goals)[H.g]
-    plan.add(Phase("reach", {H.g: _jt(tr.times, tr.q, _ramp(tr.times, H.width_start[H.g], H.wg))},
-                   f"{H.g} to its pre-grasp, opening", "ompl"))
+    parts = _free_opening(motion, plan, [H.g], H.q_start, goals,
+                          lambda op: motion.context("map", openings={H.g: op[H.g], H.r: H.width_start[H.r]}),
+                          {H.g: H.width_start[H.g]}, {H.g: H.wg})
+    _add_opening(plan, "reach", parts, f"{H.g} to its pre-grasp, opening")
     at.append("approach")
     q, _ = plan.end_state()
     with motion.context("cut", openings={H.g: H.wg}):
@@ -843,17 +890,18 @@ def _handover_transfer(H: _Handover, plan: TaskPlan, attach: tuple, carry_pad: f
         # the transfer pose brings the object against the waiting secondary: it goes to its pre-grasp
         # in the same motion (out of the way, to where it takes the object over)
         # (opening on the way: checked at the wider of its two openings)
-        with motion.context("attached", openings={H.g: H.cw_g, H.r: max(w0, H.wr)}, attach=attach,
-                            object_padding=carry_pad):
+        def ctx(op):
+            return motion.context("attached", openings={H.g: H.cw_g, H.r: op[H.r]}, attach=attach,
+                                  object_padding=carry_pad)
+
+        with ctx({H.r: max(w0, H.wr)}):
             sols_r = _goal_ik(motion, H.r, pre_rec, [rec.q_pre, H.q_start[H.r], rec.q])
             goals = [{H.g: s1, H.r: s2} for s1 in sols[:3] for s2 in sols_r[:3]]
             goals = [g_ for g_ in goals if not motion.problems(g_)] or goals[:1]
-            tr = motion.plan_free([H.g, H.r], q, goals)
-        ts = tr[H.r].times
-        plan.add(Phase("transfer", {H.g: _jt(tr[H.g].times, tr[H.g].q, CLOSED),
-                                    H.r: _jt(ts, tr[H.r].q, _ramp(ts, w0, H.wr))},
-                       f"object carried to the transfer pose; the {H.r} to its pre-grasp, out of its way",
-                       "ompl"))
+        parts = _free_opening(motion, plan, [H.g, H.r], q, goals, ctx, {H.g: CLOSED, H.r: w0},
+                              {H.g: CLOSED, H.r: H.wr})
+        _add_opening(plan, "transfer", parts, f"object carried to the transfer pose; the {H.r} to its pre-grasp, "
+                                              "out of its way")
     return pre_rec
 
 
@@ -909,10 +957,7 @@ def _receive_reach_strategies(H: _Handover, q: dict, attach: tuple, sols: np.nda
             return motion.plan_free([H.r], q, [{H.r: s} for s in sols[:4]])[H.r]
 
     def open_there():
-        tr = plan_to_goals(w0)
-        times = np.concatenate([tr.times, tr.times[-1] + np.array([0.5 * CLOSE_S, CLOSE_S])])
-        return _jt(times, np.concatenate([tr.q, [tr.q[-1], tr.q[-1]]]),
-                   np.r_[np.full(len(tr.times), w0), 0.5 * (w0 + H.wr), H.wr])
+        return _opened_at_end(plan_to_goals(w0), w0, H.wr)
 
     def open_on_the_way():
         tr = plan_to_goals(H.wr)
