@@ -375,6 +375,12 @@ TOP_CELL = 0.01  # m: cells of a cylinder's top disc that must hold a point at t
 TOP_MIN_SEEN = 0.5  # share of the top disc the depth views must have seen (a lid, or through it) to judge it
 
 
+def _beyond_circle(geo: ObjectGeometry, r: float, tol: float) -> bool:
+    """The segment is more than the can: its box reaches past the square of the circle of radius ``r`` grown by
+    ``tol`` a side (a piece of a neighbour in it)."""
+    return float(np.max(geo.extent[:2])) > 2 * (r + tol)
+
+
 def _cylinder_fit(geo: ObjectGeometry, P: np.ndarray, N: np.ndarray, support: Support, tol: float, views) -> float:
     """:func:`primitive_fit`'s upright cylinder for the seen points ``P`` (M, 3) with normals ``N`` (M, 3): the
     share of them within ``tol`` of its side or top, capped by how closed its top is; 0 without a can's
@@ -388,7 +394,7 @@ def _cylinder_fit(geo: ObjectGeometry, P: np.ndarray, N: np.ndarray, support: Su
     if fit is None or not CYL_RADIUS[0] <= fit[1] <= CYL_RADIUS[1]:
         return 0.0
     c, r = fit
-    if float(np.max(geo.extent[:2])) > 2 * (r + tol):  # the segment is more than the can
+    if _beyond_circle(geo, r, tol):
         return 0.0
     rho = np.linalg.norm(xy - c, axis=1)
     elev = support.elevation(P)
@@ -511,6 +517,11 @@ def _unseen_arc(arc: _SideArc) -> tuple[float, float] | None:
     return ang[k], gaps[k]
 
 
+def _in_plane(arc: _SideArc, uv: np.ndarray) -> np.ndarray:
+    """(K, 3) the table-plane coordinates ``uv`` (K, 2) along the arc's basis (e1, e2), through the origin."""
+    return uv[:, :1] * arc.e1 + uv[:, 1:] * arc.e2
+
+
 def _on_circle(geo: ObjectGeometry, arc: _SideArc, support: Support) -> ObjectGeometry:
     """``geo`` with its seen surface laid on the fitted circle: side points within ``PRIMITIVE_TOL`` of it, and
     any point up to that far outside it (the top's rim), moved onto it along the radius (side normals radial).
@@ -518,21 +529,19 @@ def _on_circle(geo: ObjectGeometry, arc: _SideArc, support: Support) -> ObjectGe
     The sampler's contact width is the extent of the points between the fingers, and the points' noise and
     the fused views' depth blur widen it by millimetres a side (a 6.5 cm can came out past the 66 mm the
     stroke takes): the fitted circle places the can's surface to about a millimetre, its points do not."""
-    e1, e2 = arc.e1, arc.e2
     P = geo.points
-    rel = np.stack([P @ e1, P @ e2], axis=1) - arc.c
+    rel = np.stack([P @ arc.e1, P @ arc.e2], axis=1) - arc.c
     d = np.linalg.norm(rel, axis=1)
     side = geo.observed & (np.abs(geo.normals @ support.up) < 0.3)
     move = geo.observed & (d > 1e-9) & (np.where(side, np.abs(d - arc.r), d - arc.r) <= PRIMITIVE_TOL)
     move &= side | (d > arc.r)
     if not move.any():
         return geo
-    radial = rel[move] / d[move, None]
-    step = (arc.r - d[move])[:, None] * radial
+    radial = rel / np.maximum(d, 1e-12)[:, None]  # (M, 2) unit, in the plane
     Q, N = P.copy(), geo.normals.copy()
-    Q[move] += step[:, :1] * e1 + step[:, 1:] * e2
+    Q[move] += _in_plane(arc, (arc.r - d[move])[:, None] * radial[move])
     rs = move & side
-    N[rs] = (rel[rs, :1] / d[rs, None]) * e1 + (rel[rs, 1:] / d[rs, None]) * e2
+    N[rs] = _in_plane(arc, radial[rs])
     return ObjectGeometry(geo.id, geo.n_points, Q, N, geo.T_b1_box, geo.extent, geo.centre, geo.voxel, geo.observed)
 
 
@@ -592,8 +601,8 @@ def complete_cylinder(geo: ObjectGeometry, support: Support, bottom: float = 0.0
     if not _radial_normals(geo, arc):
         return geo
     gap = _unseen_arc(arc)
-    if gap is None or float(np.max(geo.extent[:2])) > 2 * (arc.r + PRIMITIVE_TOL):
-        return geo  # (or the segment is more than the can: a neighbour's piece in it, as primitive_fit says)
+    if gap is None or _beyond_circle(geo, arc.r, PRIMITIVE_TOL):
+        return geo
     out = _on_circle(geo, arc, support)
     Q, Nq = _arc_points(arc, gap, np.arange(bottom + 0.5 * geo.voxel, top, geo.voxel), geo.voxel, support)
     if len(Q):
@@ -608,10 +617,9 @@ def _arc_points(arc: _SideArc, gap: tuple[float, float], zs: np.ndarray, step: f
     da = step / arc.r
     a_new = gap[0] + np.arange(da, gap[1] - 0.5 * da, da)
     ring = np.stack([np.cos(a_new), np.sin(a_new)], axis=1)
-    e1, e2, up = arc.e1, arc.e2, support.up
-    base = (arc.c[0] + arc.r * ring[:, :1]) * e1 + (arc.c[1] + arc.r * ring[:, 1:]) * e2  # (A, 3) through 0
-    Q = (base[:, None, :] + (support.height + zs)[None, :, None] * up).reshape(-1, 3)
-    return Q, np.repeat(ring[:, :1] * e1 + ring[:, 1:] * e2, len(zs), axis=0)
+    base = _in_plane(arc, arc.c + arc.r * ring)  # (A, 3) in the plane through 0
+    Q = (base[:, None, :] + (support.height + zs)[None, :, None] * support.up).reshape(-1, 3)
+    return Q, np.repeat(_in_plane(arc, ring), len(zs), axis=0)
 
 
 def complete_by_symmetry(geo: ObjectGeometry, support: Support, gap: float | None = None) -> ObjectGeometry:

@@ -88,14 +88,6 @@ def _jt(times, q, widths):
     return JointTrajectory(times, np.asarray(q, dtype=np.float64), w)
 
 
-def _opened_at_end(tr, w0, w1):
-    """A JointTrajectory of ``tr`` (``_Traj``) at width ``w0``, then still at its end while the gripper goes to
-    ``w1`` (CLOSE_S)."""
-    times = np.concatenate([tr.times, tr.times[-1] + np.array([0.5 * CLOSE_S, CLOSE_S])])
-    return _jt(times, np.concatenate([tr.q, [tr.q[-1], tr.q[-1]]]),
-               np.r_[np.full(len(tr.times), w0), 0.5 * (w0 + w1), w1])
-
-
 def _free_opening(motion: TaskMotion, plan: TaskPlan, arms: list, q_now: dict, goals: list[dict], ctx,
                   w_from: dict, w_to: dict) -> list[dict]:
     """The free motion of ``arms`` from ``q_now`` to one of ``goals`` (arm -> (J,)) while each of their
@@ -108,20 +100,23 @@ def _free_opening(motion: TaskMotion, plan: TaskPlan, arms: list, q_now: dict, g
     meet the map: points the start's clean-up of the map kept), they move as they are, checked at
     ``w_from``, and open at a goal that is free with them open (fallback ``open-at-goal``)."""
     wide = {a: max(w_from[a], w_to[a]) for a in w_from}
+
+    def opening_on_the_way():
+        tr = motion.plan_free(arms, q_now, goals)
+        return [{a: _jt(tr[a].times, tr[a].q, _ramp(tr[a].times, w_from[a], w_to[a])) for a in arms}]
+
     with ctx(wide):
-        start_open = not motion.problems(q_now)
+        if not motion.problems(q_now) or not _fallback(motion, "open-at-goal"):
+            return opening_on_the_way()
         open_goals = [g for g in goals if not motion.problems({**q_now, **g})]
     with ctx(w_from):
-        start_as_is = not motion.problems(q_now)
-    if start_open or not start_as_is or not open_goals or not _fallback(motion, "open-at-goal"):
-        with ctx(wide):
-            tr = motion.plan_free(arms, q_now, goals)
-        return [{a: _jt(tr[a].times, tr[a].q, _ramp(tr[a].times, w_from[a], w_to[a])) for a in arms}]
-    with ctx(w_from):
-        tr = motion.plan_free(arms, q_now, open_goals)
-    _used(plan, "open-at-goal")
-    return [{a: _jt(tr[a].times, tr[a].q, w_from[a]) for a in arms},
-            {a: _still(tr[a].q[-1], w_from[a], w_to[a]) for a in arms}]
+        if open_goals and not motion.problems(q_now):
+            tr = motion.plan_free(arms, q_now, open_goals)
+            _used(plan, "open-at-goal")
+            return [{a: _jt(tr[a].times, tr[a].q, w_from[a]) for a in arms},
+                    {a: _still(tr[a].q[-1], w_from[a], w_to[a]) for a in arms}]
+    with ctx(wide):  # not free as they are either, or no goal free open: as it was (the start fails)
+        return opening_on_the_way()
 
 
 def _add_opening(plan: TaskPlan, name: str, parts: list[dict], note: str) -> None:
@@ -957,7 +952,10 @@ def _receive_reach_strategies(H: _Handover, q: dict, attach: tuple, sols: np.nda
             return motion.plan_free([H.r], q, [{H.r: s} for s in sols[:4]])[H.r]
 
     def open_there():
-        return _opened_at_end(plan_to_goals(w0), w0, H.wr)
+        tr = plan_to_goals(w0)
+        times = np.concatenate([tr.times, tr.times[-1] + np.array([0.5 * CLOSE_S, CLOSE_S])])
+        return _jt(times, np.concatenate([tr.q, [tr.q[-1], tr.q[-1]]]),
+                   np.r_[np.full(len(tr.times), w0), 0.5 * (w0 + H.wr), H.wr])
 
     def open_on_the_way():
         tr = plan_to_goals(H.wr)
