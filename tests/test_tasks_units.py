@@ -762,3 +762,37 @@ def test_a_gripper_whose_fingers_would_open_into_the_map_where_it_stands_opens_a
     assert np.ptp(opening.trajectories["primary"].q, axis=0).max() == 0.0  # still while it opens
     with pytest.raises(PlanFailure, match="start configuration is not valid"):
         plan_joint_grasp(motion(leave_out=("open-at-goal",)), choice, q0, w0)
+
+
+def test_a_reach_blocked_open_at_its_start_and_at_its_goals_names_what_blocks_the_goals():
+    """The primary's fingers, opened where it stands, meet the map, and its pre-grasp meets the waiting
+    secondary: the failure is the goal's (it names the secondary, whom the hand-over's make-way turns aside),
+    not the start's (which opening at the goal would have solved); nothing is planned."""
+    import contextlib
+
+    from bimanual_app.tasks._planners import _free_opening
+
+    start, goal = {"primary": np.zeros(6), "secondary": np.zeros(6)}, {"primary": np.ones(6)}
+
+    class Motion:
+        leave_out, opening = (), 0.0
+
+        def problems(self, q):
+            if q["primary"] is goal["primary"]:
+                return ["primary gripper_base / secondary gripper_base collide"]
+            return ["primary link8 touches the scene map"] if self.opening > 0 else []
+
+        def plan_free(self, *args):
+            raise AssertionError("planned towards a blocked goal")
+
+    m = Motion()
+
+    @contextlib.contextmanager
+    def ctx(openings):
+        m.opening = openings["primary"]
+        yield
+
+    with pytest.raises(PlanFailure, match="no goal is free .*secondary gripper_base") as e:
+        _free_opening(m, TaskPlan(start, {"primary": 0.0}), ["primary"], start, [goal], ctx, {"primary": 0.0},
+                      {"primary": 0.07})
+    assert e.value.stage == "reach" and "start" not in e.value.message.split("(")[0]

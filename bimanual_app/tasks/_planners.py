@@ -98,7 +98,9 @@ def _free_opening(motion: TaskMotion, plan: TaskPlan, arms: list, q_now: dict, g
     The grippers open on the way, the motion checked at the wider of the two widths all along. Where the
     start is not free with them open but is as they are (the fingers, opened where the arm stands, would
     meet the map: points the start's clean-up of the map kept), they move as they are, checked at
-    ``w_from``, and open at a goal that is free with them open (fallback ``open-at-goal``)."""
+    ``w_from``, and open at a goal that is free with them open (fallback ``open-at-goal``). Where no goal is
+    free with them open either, the failure names what blocks the goals (another arm in the way is what
+    the hand-over's ``make-way`` turns aside), not the start."""
     wide = {a: max(w_from[a], w_to[a]) for a in w_from}
 
     def opening_on_the_way():
@@ -109,13 +111,17 @@ def _free_opening(motion: TaskMotion, plan: TaskPlan, arms: list, q_now: dict, g
         if not motion.problems(q_now) or not _fallback(motion, "open-at-goal"):
             return opening_on_the_way()
         open_goals = [g for g in goals if not motion.problems({**q_now, **g})]
+        if not open_goals:  # the goals are blocked too: that is what to report (an arm in the way makes way)
+            why = motion.problems({**q_now, **goals[0]}) if goals else ["no goal"]
+            raise PlanFailure("reach", f"{' + '.join(arms)} motion: no goal is free with the gripper open "
+                                       f"({why[0]}), nor is the start")
     with ctx(w_from):
         if open_goals and not motion.problems(q_now):
             tr = motion.plan_free(arms, q_now, open_goals)
             _used(plan, "open-at-goal")
             return [{a: _jt(tr[a].times, tr[a].q, w_from[a]) for a in arms},
                     {a: _still(tr[a].q[-1], w_from[a], w_to[a]) for a in arms}]
-    with ctx(wide):  # not free as they are either, or no goal free open: as it was (the start fails)
+    with ctx(wide):  # not free as they are either: as it was (the start fails)
         return opening_on_the_way()
 
 
