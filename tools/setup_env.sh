@@ -2,7 +2,7 @@
 # Create or refresh .venv/ for this project on a fresh machine.
 #   - installs the system libraries Open3D's wheel needs (apt-get when root; otherwise names them and stops)
 #   - (re)creates .venv/ when it is missing or stale against pyproject.toml
-#   - installs the project (editable) with its pinned dependencies
+#   - installs the project (editable) with its dependencies at the versions constraints.txt pins
 # Idempotent: a second run with nothing changed takes well under a second.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -41,13 +41,13 @@ if [ ${#missing[@]} -gt 0 ]; then
 fi
 
 # --- virtual environment ---------------------------------------------------------------------------
-want=$(cat pyproject.toml | sha256sum | cut -c1-16)-$($PY -c 'import sys;print("%d.%d"%sys.version_info[:2])')
+want=$(cat pyproject.toml constraints.txt 2>/dev/null | sha256sum | cut -c1-16)-$($PY -c 'import sys;print("%d.%d"%sys.version_info[:2])')
 have=$(cat "$STAMP" 2>/dev/null || true)
 if [ -x "$VENV/bin/python" ] && [ "$want" = "$have" ]; then
   exit 0
 fi
 if [ -d "$VENV" ] && [ -n "$have" ]; then
-  echo "[setup] .venv is stale against pyproject.toml; updating it"
+  echo "[setup] .venv is stale against pyproject.toml or constraints.txt; updating it"
 else
   echo "[setup] creating $VENV (takes about 2 minutes on a fresh machine)"
   rm -rf "$VENV"
@@ -55,6 +55,9 @@ else
 fi
 "$VENV/bin/python" -m pip install -q --upgrade pip >/dev/null 2>&1 || true
 # torch==2.13.0 is pinned in pyproject.toml; pip finds the CPU wheel via the machine's find-links.
-"$VENV/bin/python" -m pip install -q --disable-pip-version-check -e ".[dev]"
+# constraints.txt: the exact versions the benches ran with (same numerics on a fresh machine)
+pins=()
+[ -f constraints.txt ] && pins=(-c constraints.txt)
+"$VENV/bin/python" -m pip install -q --disable-pip-version-check "${pins[@]}" -e ".[dev]"
 echo "$want" > "$STAMP"
 echo "[setup] .venv ready"
