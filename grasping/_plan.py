@@ -292,8 +292,9 @@ def _workspace(cloud: SceneCloud, arms: dict[str, Arm] | None, radius: float) ->
     keep = (cloud.labels >= 0) | (d <= radius)
     if keep.all():
         return cloud
-    return SceneCloud(cloud.points[keep], cloud.labels[keep], None if cloud.colors is None else cloud.colors[keep],
-                      cloud.table_plane, cloud.source, cloud.views)
+    # replace(): the cloud's other fields (plane, source, views, any added later) are kept as they are
+    return replace(cloud, points=cloud.points[keep], labels=cloud.labels[keep],
+                   colors=None if cloud.colors is None else cloud.colors[keep])
 
 
 def _balanced_hints(per_arm: list[np.ndarray]) -> np.ndarray | None:

@@ -68,3 +68,21 @@ def test_empty_narrow_and_wide_objects_are_reported_not_grasped():
     for k in (1, 2, 3, 4, 5):
         p = by_id[k].problems[0]
         assert p.field == f"object {k}" and p.fix
+
+
+def test_the_workspace_drops_far_background_and_keeps_every_object_point_and_field():
+    """Background farther than the radius from both bases goes (a room's floor and walls); an object's points
+    stay however far they are, and the cloud's plane, sources and colours come along."""
+    from grasping._plan import _workspace
+
+    P, L = make_cloud([Obj("box", (0.3, 0.0), (0.04, 0.04, 0.05))])
+    far = np.array([[3.0, 0.0, 0.0], [0.0, 3.0, 0.0]])
+    P, L = np.vstack([P, far, [[2.5, 0.0, 0.02]]]), np.r_[L, -1, -1, 0]
+    C = (np.arange(len(P))[:, None] % 255 * np.ones(3)).astype(np.uint8)
+    cloud = scene_cloud(P, L, C, table_plane=np.array([0.0, 0.0, 1.0, 0.0]), source={"cloud": "x.ply"})
+    arms = accept_all_arms(np.eye(4))
+    kept = _workspace(cloud, arms, radius=1.0)
+    assert len(kept.points) == len(P) - 2 and not np.isin(far, kept.points).all(axis=1).any()
+    assert (kept.labels == 0).sum() == (L == 0).sum() and [2.5, 0.0, 0.02] in kept.points.tolist()
+    assert np.array_equal(kept.colors, C[:-3].tolist() + [C[-1].tolist()])
+    assert kept.source == {"cloud": "x.ply"} and np.array_equal(kept.table_plane, [0.0, 0.0, 1.0, 0.0])
