@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Create or refresh .venv/ for this project on a fresh machine.
 #   - installs the system libraries Open3D's wheel needs (apt-get when root; otherwise names them and stops)
-#   - (re)creates .venv/ when it is missing or stale against pyproject.toml
+#   - (re)creates .venv/ when it is missing or stale against pyproject.toml or constraints.txt
 #   - installs the project (editable) with its dependencies at the versions constraints.txt pins
 # Idempotent: a second run with nothing changed takes well under a second.
 set -euo pipefail

@@ -116,7 +116,7 @@ def _free_opening(motion: TaskMotion, plan: TaskPlan, arms: list, q_now: dict, g
             raise PlanFailure("reach", f"{' + '.join(arms)} motion: no goal is free with the gripper open "
                                        f"({why[0]}), nor is the start")
     with ctx(w_from):
-        if open_goals and not motion.problems(q_now):
+        if not motion.problems(q_now):  # (open_goals is not empty: raised above)
             tr = motion.plan_free(arms, q_now, open_goals)
             _used(plan, "open-at-goal")
             return [{a: _jt(tr[a].times, tr[a].q, w_from[a]) for a in arms},
