@@ -125,6 +125,23 @@ def test_targets_need_the_rate_and_the_lower_end_of_its_interval():
     assert "| 45/50 = 90 % (79-96 %) | FAIL |" in text and "(-8 points) | FAIL |" in text
 
 
+def test_a_plan_that_fails_its_own_preview_is_no_success_even_where_it_would_hold():
+    planned = {"plans": {"primary": []}, "failed_stage": "preview"}
+    rejected = bench_tasks.outcome({**planned, "preview": {"success": False, "reason": "not held by secondary"},
+                                    "preview_truth": {"success": True, "reason": "held"}})
+    assert rejected["reality_ok"] and not rejected["truth_ok"]
+    assert rejected["stage"] == "preview" and rejected["reason"].startswith("not approved")
+    assert "not held by secondary" in rejected["reason"]
+    approved = bench_tasks.outcome({"plans": {"primary": []}, "preview": {"success": True},
+                                    "preview_truth": {"success": True, "reason": "held"}})
+    assert approved["truth_ok"] and approved["stage"] == ""
+    wrong = bench_tasks.outcome({"plans": {"primary": []}, "preview": {"success": True},
+                                 "preview_truth": {"success": False, "reason": "dropped"}})
+    assert not wrong["truth_ok"] and wrong["reason"] == "dropped"
+    unplanned = bench_tasks.outcome({"failed_stage": "grasp", "reason": "no object has a feasible hand-over"})
+    assert not unplanned["planned"] and unplanned["stage"] == "grasp" and "feasible" in unplanned["reason"]
+
+
 def test_set_table_reports_among_oracle_solved():
     res = _results({"pipeline": [True, False, True, False], "oracle": [True, True, False, False]})
     text = "\n".join(bench_tasks.set_table(res, ["pipeline", "oracle"], ["joint-grasp"]))
