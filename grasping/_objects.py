@@ -112,15 +112,16 @@ def estimate_support(points: np.ndarray, labels: np.ndarray, table_plane: np.nda
 
 def object_geometry(obj_id: int, P: np.ndarray, support: Support, voxel: float = 0.003,
                     normal_radius: float | None = None, complete: bool = True,
-                    background: np.ndarray | None = None) -> ObjectGeometry:
+                    background: np.ndarray | None = None, others: np.ndarray | None = None) -> ObjectGeometry:
     """Gravity-aligned box, downsampled points and outward normals of one object's points P (M, 3);
     with ``complete``, unseen sides filled by :func:`complete_by_symmetry` and, for a carton standing on the
     table (both sides >= ``WALLS_MIN_SIDE``, its points covering its footprint rectangle), by
     :func:`complete_walls`.
 
-    ``background`` (K, 3): the scene's other points (the table). An object whose lowest points are above the
-    table (only its top was seen, as wrist cameras looking down see a carton) still stands on the table when
-    the table is hidden under its footprint (:func:`hides_table`): its box then reaches down to the table.
+    ``background`` (K, 3): the scene's other points (the table); ``others`` (O, 3): the other objects' points.
+    An object whose lowest points are above the table (only its top was seen, as wrist cameras looking down
+    see a carton or a small box) still stands on the table when the table is hidden under its footprint and
+    no other object is seen under it (:func:`hides_table`): its box then reaches down to the table.
     """
     import cv2
     import open3d as o3d
@@ -142,7 +143,8 @@ def object_geometry(obj_id: int, P: np.ndarray, support: Support, voxel: float =
     top = float(np.percentile(elev, q[1]))
     bottom = max(0.0, float(np.percentile(elev, q[0])))
     bottom = 0.0 if bottom < 0.02 else bottom  # resting on the table: the box reaches down to it
-    if bottom > 0.0 and background is not None and hides_table(background, support, u, v, (lo_u, hi_u), (lo_v, hi_v)):
+    if bottom > 0.0 and background is not None and hides_table(background, support, u, v, (lo_u, hi_u), (lo_v, hi_v),
+                                                               others=others, bottom=bottom):
         bottom = 0.0  # only the top was seen, but nothing under it: it stands on the table
     centre = 0.5 * (lo_u + hi_u) * u + 0.5 * (lo_v + hi_v) * v + (support.height + 0.5 * (top + bottom)) * up
     T = np.eye(4)
@@ -192,20 +194,32 @@ def _footprint_cover(pu: np.ndarray, pv: np.ndarray, range_u: tuple, range_v: tu
 
 def hides_table(background: np.ndarray, support: Support, u: np.ndarray, v: np.ndarray, range_u: tuple,
                 range_v: tuple, inset: float = 0.02, ring: float = 0.06, max_ratio: float = 0.2,
-                min_ring_points: int = 50) -> bool:
+                min_ring_points: int = 50, others: np.ndarray | None = None, bottom: float = 0.0,
+                min_side: float = 0.02) -> bool:
     """Whether an object with footprint ``range_u`` x ``range_v`` (along the horizontal unit axes u, v (3,))
     hides the table: table points (``background`` (K, 3) within 1.5 cm of the table plane) inside the
-    footprint, ``inset`` m in from its edges, are under ``max_ratio`` times as dense as in the ``ring`` m
-    wide band around it (which must hold ``min_ring_points``). A solid standing on the table hides it from
-    every camera; something held above it does not."""
+    footprint, ``inset`` m in from its edges (a quarter of its narrower side where that is less), are under
+    ``max_ratio`` times as dense as in the ``ring`` m wide band around it (which must hold
+    ``min_ring_points``), and no point of another object (``others`` (O, 3)) lies there between the table and
+    the object's lowest seen point (``bottom`` m above the table): what stands on the table hides it from
+    every camera, something held above it or resting on another object does not. Footprints narrower than
+    ``min_side`` are too small to tell."""
     B = np.asarray(background, dtype=np.float64).reshape(-1, 3)
     B = B[np.abs(support.elevation(B)) < 0.015]
     if not len(B):
         return False
-    bu, bv = B @ u, B @ v
     (lu, hu), (lv, hv) = range_u, range_v
-    if hu - lu < 2 * inset + 0.02 or hv - lv < 2 * inset + 0.02:
+    if min(hu - lu, hv - lv) < min_side:
         return False  # too small to tell
+    inset = min(inset, 0.25 * min(hu - lu, hv - lv))
+    if others is not None and len(others):
+        O = np.asarray(others, dtype=np.float64).reshape(-1, 3)
+        e = support.elevation(O)
+        ou, ov = O @ u, O @ v
+        if np.any((e > 0.015) & (e < bottom) & (ou > lu + inset) & (ou < hu - inset) & (ov > lv + inset)
+                  & (ov < hv - inset)):
+            return False  # it rests on another object
+    bu, bv = B @ u, B @ v
 
     def inside(m: float) -> np.ndarray:
         return (bu > lu - m) & (bu < hu + m) & (bv > lv - m) & (bv < hv + m)

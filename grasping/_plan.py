@@ -221,7 +221,7 @@ def plan_object(k: int, cloud: SceneCloud, support: Support, gripper: GripperMod
                      "check the segmentation (an empty or speck segment), or capture the object from more views")
         return ObjectPlan(k, None, "none", [pr])
     geo = object_geometry(k, cloud.points[mask], support, voxel=params.sampler.ray_radius * 0.75,
-                          background=cloud.points[cloud.labels < 0])
+                          background=cloud.points[cloud.labels < 0], others=cloud.points[(cloud.labels >= 0) & ~mask])
     plan = ObjectPlan(k, geo, "single")
     plan.shape, plan.shape_fit = primitive_fit(geo, support, views=cloud.views)
     sp = params.sampler

@@ -50,6 +50,27 @@ def test_a_plate_held_above_the_table_is_not_grounded():
                        (Q[:, 0].min(), Q[:, 0].max()), (Q[:, 1].min(), Q[:, 1].max()))
 
 
+def test_a_small_box_seen_only_from_above_stands_on_the_table_unless_it_rests_on_another_object():
+    """A 5 cm box seen from above only (its sides hidden by the views, the table hidden under it) reaches
+    down to the table; a piece of the same size seen on top of a carton rests on the carton."""
+    small = Obj("box", (0.3, 0.0), (0.05, 0.04, 0.05))
+    P, L = _top_only(*make_cloud([small], table_size=(0.8, 0.8)), top=0.05)
+    sup = estimate_support(P, L)
+    geo = object_geometry(0, P[L == 0], sup, background=P[L < 0])
+    assert abs(geo.extent[2] - 0.05) < 0.006 and abs(geo.centre[2] - 0.025) < 0.004
+    carton = Obj("box", (0.3, 0.0), (0.12, 0.10, 0.10))
+    Pc, Lc = make_cloud([carton], table_size=(0.8, 0.8))
+    piece = Pc[(Lc == 0) & (Pc[:, 2] > 0.097) & (np.abs(Pc[:, 0] - 0.3) < 0.025) & (np.abs(Pc[:, 1]) < 0.02)]
+    piece = piece + [0.0, 0.0, 0.02]  # 2 cm above the carton's top: a piece held on it
+    sup = estimate_support(Pc, Lc)
+    geo = object_geometry(1, piece, sup, background=Pc[Lc < 0], others=Pc[Lc == 0])
+    assert geo.extent[2] < 0.02  # not a column through the carton down to the table
+    u, v = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
+    rng_u, rng_v = (piece[:, 0].min(), piece[:, 0].max()), (piece[:, 1].min(), piece[:, 1].max())
+    assert hides_table(Pc[Lc < 0], sup, u, v, rng_u, rng_v)  # the table is hidden there ...
+    assert not hides_table(Pc[Lc < 0], sup, u, v, rng_u, rng_v, others=Pc[Lc == 0], bottom=0.118)  # ... by the carton
+
+
 def test_givers_that_hold_deeper_are_likelier_to_hold():
     from grasping._handover import HandoverParams, giver_hold_probability
 
