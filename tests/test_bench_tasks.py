@@ -42,8 +42,9 @@ def test_sets_are_disjoint_and_the_heldout_set_is_fresh():
     held, tune = set(bench_tasks.HELDOUT_SEEDS), set(bench_tasks.TUNING_SEEDS)
     assert len(held) >= 50 and tune == set(range(20))
     assert not held & tune and not held & set(bench_tasks.STUDIED_SEEDS)  # studied ranges are tuning data now
-    assert bench_tasks.set_of(19003) == "heldout" and bench_tasks.set_of(4) == "tuning"
-    assert all(bench_tasks.set_of(s) == "other" for s in (1005, 7003, 9003, 12003, 14003, 15003, 16003, 17003, 18003))
+    assert bench_tasks.set_of(20003) == "heldout" and bench_tasks.set_of(4) == "tuning"
+    assert all(bench_tasks.set_of(s) == "other" for s in (1005, 7003, 9003, 12003, 14003, 15003, 16003, 17003, 18003,
+                                                          19003))
 
 
 def test_choose_full_run_and_subsets():
@@ -53,7 +54,7 @@ def test_choose_full_run_and_subsets():
         ["--seeds", "7000", "--tasks", "joint-grasp", "--modes", "pipeline,oracle"]))
     assert not full and seeds == [7000] and modes == ["pipeline", "oracle"] and tasks == ["joint-grasp"]
     seeds, _, _, full = bench_tasks.choose(bench_tasks.parse_args(["--set", "heldout", "--quick"]))
-    assert not full and seeds == [19000, 19001, 19002]
+    assert not full and seeds == [20000, 20001, 20002]
     with pytest.raises(SystemExit):
         bench_tasks.choose(bench_tasks.parse_args(["--modes", "pipline"]))
     _, _, _, full = bench_tasks.choose(bench_tasks.parse_args(["--views", "6"]))
