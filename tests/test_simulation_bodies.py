@@ -138,22 +138,6 @@ def test_trim_outer_drops_the_spread_not_the_body():
     assert np.array_equal(trim_outer(out[:20], np.array([0.0, 0.0, 1.0])), out[:20])  # too few to trim
 
 
-def test_a_free_form_body_keeps_its_thin_outermost_parts():
-    """A body with a thin part sticking out (a mug's handle, a duck's head: 3 % of its points, all of them its
-    outermost in that direction) is simulated with it: the hull takes every point but the statistical
-    outliers; trimming the outermost 2 % per direction (as for an enclosing box) cut the part away."""
-    from bimanual_app.simulation import shape_from_points
-
-    rng = np.random.default_rng(3)
-    ang = rng.uniform(0, 2 * np.pi, 3000)
-    body = np.c_[0.03 * np.cos(ang), 0.03 * np.sin(ang), rng.uniform(0, 0.08, 3000)]
-    handle = np.c_[rng.uniform(0.03, 0.055, 100), rng.uniform(-0.005, 0.005, 100), rng.uniform(0.02, 0.06, 100)]
-    sh = shape_from_points(np.vstack([body, handle]), table_from_plane([0, 0, 1], 0.0), kind="auto")
-    assert sh.kind == "hull"
-    far = (sh.vertices @ sh.T_b1_o[:3, :3].T + sh.T_b1_o[:3, 3])[:, 0].max()
-    assert far > 0.053  # the handle's end, not the body's side (0.03)
-
-
 def test_box_from_faces_ignores_a_neighbour_bleeding_into_the_segment():
     from bimanual_app.simulation import box_from_faces
 

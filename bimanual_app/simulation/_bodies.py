@@ -10,11 +10,8 @@ Choices:
   before the hull is taken: the body then stands on the table like the real object does.
 - Stray points (segmentation bleed, depth noise) would inflate a hull; points whose mean distance to
   their k nearest neighbours is far above the typical value are dropped first (the statistical outlier
-  test of PCL / Open3D, written with scipy's cKDTree to avoid loading Open3D for it). For an enclosing box
-  (and the box-or-not test) the outermost 2% in every horizontal direction and in height go too
-  (:func:`trim_outer`): noisy faces spread outwards. A hull keeps them: a free-form object's outermost
-  points in some direction are often a thin part of it (a mug's handle, a duck's head), which trimming cut
-  away, and the previews then let fingers through where the real object is.
+  test of PCL / Open3D, written with scipy's cKDTree to avoid loading Open3D for it); then the outermost 2%
+  in every horizontal direction and in height (:func:`trim_outer`): noisy faces spread outwards.
 - Mass = volume x density (default 400 kg/m^3, between cardboard boxes and wood), clipped to
   [0.02, 1.5] kg (the Piper's payload is about 1.5 kg).
 """
@@ -245,17 +242,6 @@ def _mass(volume: float, density: float) -> float:
     return float(np.clip(volume * density, *MASS_RANGE))
 
 
-def _on_table(p: np.ndarray, table: TablePlane | None) -> np.ndarray:
-    """Points (N, 3) extruded down to the table (module notes): those below its top dropped as noise, each
-    other one's projection on it added; as they are without a table."""
-    if table is None:
-        return p
-    p = p[table.height(p) > -0.01]
-    if len(p) < 10:
-        raise ValueError("the object's points lie below the table plane")
-    return np.concatenate([p, table.project(p) + 0.0005 * table.normal])
-
-
 def shape_from_points(points: np.ndarray, table: TablePlane | None = None, kind: str = "hull",
                       density: float = DEFAULT_DENSITY, max_points: int = 4000, seed: int = 0,
                       trim: bool = True) -> BodyShape:
@@ -271,9 +257,9 @@ def shape_from_points(points: np.ndarray, table: TablePlane | None = None, kind:
             noisy hull's facets and tilted top make a squeezing gripper slip where the real planar face
             holds. Otherwise the hull.
         density: kg/m^3 for the mass.
-        trim: drop the outermost 2% of the points in every horizontal direction and in height
-            (:func:`trim_outer`) for the enclosing box and the box-or-not test, so that noise does not
-            inflate them (the hull and the box fitted to the faces take the untrimmed points).
+        trim: drop the outermost 2% of the points in every horizontal direction and in height first
+            (:func:`trim_outer`), so that noise does not inflate the body (hulls and enclosing boxes; the
+            box fitted to the faces takes the untrimmed points).
     Raises:
         ValueError: too few points, or a degenerate (flat) set.
     """
@@ -293,18 +279,22 @@ def shape_from_points(points: np.ndarray, table: TablePlane | None = None, kind:
     if trim:
         p = trim_outer(p, up)
     p_seen = p
-    p_hull = _on_table(p_faces, table)
-    p = _on_table(p, table)
+    if table is not None:
+        h = table.height(p)
+        p = p[h > -0.01]  # points below the table top are noise
+        if len(p) < 10:
+            raise ValueError("the object's points lie below the table plane")
+        p = np.concatenate([p, table.project(p) + 0.0005 * table.normal])
     if kind == "box":
         box, _ = box_from_faces(p_faces, up, table, density=density)
         return box if box is not None else box_shape_from_points(p, up, density)
     if kind not in ("hull", "auto"):
         raise ValueError(f"kind must be 'hull', 'box' or 'auto', got {kind!r}")
     try:
-        hull = ConvexHull(p_hull)
+        hull = ConvexHull(p)
     except QhullError as e:
         raise ValueError(f"the object's points are degenerate (flat or collinear): {e}") from None
-    verts = p_hull[hull.vertices]
+    verts = p[hull.vertices]
     R = _frame_from_normal(up)
     # body frame: yaw of the footprint's principal axis, origin at the hull's centroid (of volume)
     uv = (verts - verts.mean(0)) @ R[:, :2]
@@ -313,7 +303,7 @@ def shape_from_points(points: np.ndarray, table: TablePlane | None = None, kind:
         ax = v[:, np.argmax(w)]
         c, s = ax
         R = R @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
-    centroid = _hull_centroid(p_hull[hull.vertices], hull)
+    centroid = _hull_centroid(p[hull.vertices], hull)
     T = make_T(R, centroid)
     local = (verts - centroid) @ R
     faces = _outward_faces(hull, local)
@@ -326,7 +316,7 @@ def shape_from_points(points: np.ndarray, table: TablePlane | None = None, kind:
         if box is not None:  # clean faces: the box fitted to them
             return box
         box = box_shape_from_points(p, up, density)  # noisy normals: the enclosing box, if the hull fills it
-        if ConvexHull(p).volume >= BOX_FILL * box.volume:  # the trimmed hull: noise does not fill the box
+        if hull.volume >= BOX_FILL * box.volume:
             return box
     return BodyShape(T, "hull", size, float(hull.volume), _mass(float(hull.volume), density), local, faces)
 
