@@ -145,9 +145,8 @@ def run_one(scene: Path, work: Path, task: str, masks: bool = False, leave_out: 
 
     out = work / "tasks" / task
     t = time.perf_counter()
-    row = {"task": task, "planned": False, "estimate_ok": False, "reality_ok": False, "truth_ok": False, "stage": "",
-           "reason": "",
-           "timings": {}, "scene": scene.name}
+    row = {"task": task, "planned": False, "estimate_ok": False, "reality_ok": False, "truth_ok": False,
+           "stage": "", "reason": "", "timings": {}, "scene": scene.name}
     try:
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
             res = run_task(TaskOptions(task, str(scene), work=str(work), out=str(out), quiet=True, record=False,
@@ -232,8 +231,8 @@ def blas_core(blas_kernel: str | None = None) -> str:
 def crashed_scene(job: dict, err: Exception) -> dict:
     """The result of a scene whose Ray task failed as a whole (its worker died): every run a failure."""
     name = scene_name(job["seed"], job.get("views", VIEWS), job.get("objects", OBJECTS))
-    rows = {m: {t: {"task": t, "planned": False, "estimate_ok": False, "truth_ok": False, "stage": "crash",
-                    "reason": str(err)[:200], "timings": {}, "scene": name}
+    rows = {m: {t: {"task": t, "planned": False, "estimate_ok": False, "reality_ok": False, "truth_ok": False,
+                    "stage": "crash", "reason": str(err)[:200], "timings": {}, "scene": name}
                 for t in job["tasks"]} for m in job["modes"]}
     return {"seed": job["seed"], "scene": name, "rows": rows,
             "stage_t": {m: {} for m in job["modes"]}, "synth_s": 0.0, "wall": 0.0}
