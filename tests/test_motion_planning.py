@@ -171,6 +171,35 @@ def test_never_returns_an_unvalidated_trajectory(piper, setup, monkeypatch):
     assert "forced failure" in plan.message
 
 
+def test_a_path_refused_by_the_dense_validation_is_planned_again_with_denser_edge_checks(piper, setup, monkeypatch):
+    """The validation checks the timed trajectory at other states than the planner checked its edges at; a path
+    it refuses is planned once more with the edges checked a quarter margin apart, and that plan is kept."""
+    import bimanual_app.planning._motion as motion
+    from bimanual_app.planning import ValidationReport
+
+    steps = []
+
+    def recording(*a, **k):
+        steps.append(k.get("step"))
+        return plan_path(*a, **k)
+
+    def strict(space, times, Q, **k):  # refuses whatever came from the coarse edge check
+        return validate_samples(space, times, Q, **k) if steps[-1] is not None else ValidationReport(False, ["dip"])
+
+    monkeypatch.setattr(motion, "plan_path", recording)
+    monkeypatch.setattr(motion, "validate_samples", strict)
+    q0 = default_ready(piper)
+    goal = tabletop_configs(piper, setup.world, 1, np.random.default_rng(5), q_other=q0)[0]
+    plan = setup.plan_configurations(["primary"], {"primary": q0}, [{"primary": goal}], {"secondary": q0}, seed=1)
+    assert plan.success and plan.validation.ok, plan.message
+    assert steps == [None, pytest.approx(setup.world.margin * motion.FINE_EDGE_STEP)]
+    assert "plan_fine" in plan.timings
+    steps.clear()
+    monkeypatch.setattr(motion, "validate_samples", lambda *a, **k: ValidationReport(False, ["dip"]))
+    plan = setup.plan_configurations(["primary"], {"primary": q0}, [{"primary": goal}], {"secondary": q0}, seed=1)
+    assert not plan.success and plan.reason == "validation" and "dip" in plan.message and len(steps) == 2
+
+
 def test_joint_space_requires_the_held_arm(setup):
     with pytest.raises(ValueError, match="secondary"):
         JointSpace(setup.world, ["primary"], {})

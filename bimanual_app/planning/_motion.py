@@ -189,6 +189,15 @@ class BimanualSetup:
             return MotionPlan(False, res.message, hold=hold, timings=timings, stats=res.stats, reason=res.reason)
         t1 = time.perf_counter()
         plan = self._time_and_validate(space, arms, res.path, hold)
+        if not plan.success:
+            # the planner checks each edge at states one margin apart, the validation checks the timed
+            # trajectory at other states as far apart: a path that dips inside the margin between two checked
+            # states is refused. Once: the edges checked FINE_EDGE_STEP times as densely
+            fine = plan_path(space, start, G, timeout=timeout, seed=seed, step=space.world.margin * FINE_EDGE_STEP)
+            timings["plan_fine"] = fine.plan_time
+            again = self._time_and_validate(space, arms, fine.path, hold) if fine.success else None
+            if again is not None and again.success:
+                plan, res = again, fine
         timings["parametrize_validate"] = time.perf_counter() - t1
         timings["total"] = time.perf_counter() - t0
         plan.timings.update(timings)
@@ -218,6 +227,9 @@ class BimanualSetup:
         """Problems of a configuration of all arms ([] when valid)."""
         space = self.space(self.arm_names, q_now)
         return space.explain(np.concatenate([np.asarray(q_now[a], dtype=np.float64) for a in self.arm_names]))
+
+
+FINE_EDGE_STEP = 0.25  # of the margin: the edge check's spacing when a plan failed its dense validation
 
 
 class _Scaled:
