@@ -13,6 +13,10 @@ below its top (a handle) or, at least a fifth of N's size, rise above N's top fr
 ears beside its head: split off at the concave junction, a grasp of the body alone would close its
 fingers on the ears).
 
+A part that touches no region at all (the cloud misses the concave junction: a duck's neck) but rests on
+one that reaches the table, at most 1.5 cm above its top and inside its footprint, joins it unless it is an
+object standing on it (rule ``resting_parts``).
+
 A touching neighbour that stands on the table beside N is left alone; a box stacked on N is left alone.
 Tiny regions (fewer than ``min_object_voxels``) join the neighbour with the best affinity when they rise
 above the table band, and are dropped otherwise.
@@ -30,6 +34,7 @@ THIN = 0.03  # a part hanging off N outside its footprint must be narrower than 
 FLOAT_RISE = 0.015  # ... or, rising above N, its lowest voxels this far above N's ...
 FLOAT_SHARE = 0.2  # ... and at least this share of N's size (a bunny's ears: 0.38 of its body; the top of a
 # can seen above a carton beside it, its lower part hidden: 0.02)
+REST_GAP = 0.015  # a floating part's bottom at most this far above the top of the region it rests on
 TIGHT_MARGIN = 0.005
 HULL_MARGIN = 0.01  # "inside N's footprint": within N's x-y convex hull grown by 1 cm (N's walls, noise)
 CORE_RADIUS = 0.01  # N's footprint for that test: its core, without slivers under 2 cm wide (see core_hull) ...
@@ -139,6 +144,29 @@ def _groups(G: RegionGraph, patch_of_voxel: np.ndarray) -> dict[int, np.ndarray]
     return {int(lab[g[0]]): g for g in np.split(order, bounds)}
 
 
+def _resting_on(G: RegionGraph, S: int, big: dict, st: _Stats, params: SegmentParams) -> int | None:
+    """The region a floating region S rests on across a gap in the cloud, or None (the rule ``resting_parts``
+    of attach_parts): S does not reach the
+    table, and N, which does, has its top at most ``REST_GAP`` below S's bottom (or overlaps it by
+    ``STACK_TOL``) and holds 90% of S inside its footprint; not when S is an object standing on N
+    (:func:`is_object_on`). The region graph links only touching voxels, and where the cloud misses a
+    concave junction (a duck's neck, seen from above by wrist cameras) the part above has no neighbour."""
+    if "resting_parts" in params.skip or reaches_table(st.bottom[S], st.top[S]):
+        return None
+    best, share = None, 0.0
+    for N in big:
+        if N == S or not reaches_table(st.bottom[N], st.top[N]):
+            continue
+        if not -STACK_TOL <= st.bottom[S] - st.top[N] <= REST_GAP:
+            continue
+        inside = float(np.mean(_inside_hull(st.hull[N], st.xy[S], HULL_MARGIN)))
+        if inside >= 0.9 and inside > share:
+            best, share = N, inside
+    if best is None or is_object_on(G, S, best, st, params):
+        return None
+    return best
+
+
 def attach_parts(G: RegionGraph, patch_of_voxel: np.ndarray, xyz: np.ndarray, params: SegmentParams,
                  max_rounds: int = 200) -> int:
     """Merge tiny regions and dependent parts of ``G`` in place; returns the number of merges.
@@ -185,8 +213,11 @@ def attach_parts(G: RegionGraph, patch_of_voxel: np.ndarray, xyz: np.ndarray, pa
                       and st.bottom[S] >= st.bottom[N] + FLOAT_RISE and st.top[S] > st.top[N] + STACK_TOL / 2
                       and nS >= FLOAT_SHARE * len(big[N])):
                     cands.append(N)  # thin, held up beside N's upper part, rising above it (a bunny's ears)
+            if not cands:
+                below = _resting_on(G, S, big, st, params)
+                cands = [below] if below is not None else []
             if cands:
-                G.merge(S, max(cands, key=lambda n: G.affinity(S, n)))
+                G.merge(S, max(cands, key=lambda n: G.affinity(S, n) if n in G.adj[S] else -np.inf))
                 merges += 1
                 did = True
                 break
