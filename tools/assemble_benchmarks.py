@@ -1,7 +1,8 @@
 """Assemble docs/benchmarks.md from each benchmark's latest output in docs/bench/<area>.md.
 
-Each bench script writes its own table with the command that produced it on top; this joins them in the
-pipeline's order so docs/benchmarks.md always shows the latest output of every bench.
+Each bench script writes its own table with the command that produced it on top (the segmentation benches
+keep the page's earlier runs below it: ``bench/_doc.py``); this joins them in the pipeline's order so
+docs/benchmarks.md always shows the latest output of every bench.
 Run: .venv/bin/python tools/assemble_benchmarks.py
 """
 
