@@ -385,6 +385,9 @@ def fit_circle(xy: np.ndarray) -> tuple[np.ndarray, float] | None:
 
 PRIMITIVE_TOL = 0.005  # m: a seen point this near a box's or cylinder's surface fits it (cloud noise ~2-3 mm)
 PRIMITIVE_MIN_FIT = 0.9  # share of the seen points that must fit; the bench's mugs, ducks, bunnies and tori: <= 0.86
+TOP_BAND = 0.004  # m: the top's points, this far below its highest, outline it ...
+TOP_ROUND_MAX = 0.87  # ... a cylinder's outline fills at most this share of its least rectangle (a disc: 0.79)
+TOP_MIN_POINTS = 20  # ... with at least this many points (else the outline is not judged)
 TOP_CELL = 0.01  # m: cells of a cylinder's top disc that must hold a point at the top (a mug shows a rim only)
 TOP_MIN_SEEN = 0.5  # share of the top disc the depth views must have seen (a lid, or through it) to judge it
 
@@ -393,6 +396,20 @@ def _beyond_circle(geo: ObjectGeometry, r: float, tol: float) -> bool:
     """The segment is more than the can: its box reaches past the square of the circle of radius ``r`` grown by
     ``tol`` a side (a piece of a neighbour in it)."""
     return float(np.max(geo.extent[:2])) > 2 * (r + tol)
+
+
+def _top_outline_square(xy: np.ndarray) -> bool:
+    """Whether the top's seen points ``xy`` (K, 2) fill their least rectangle like a box's top, not a disc's:
+    the convex hull's area over the min-area rectangle's above ``TOP_ROUND_MAX`` (a disc: pi/4 = 0.79; a
+    rectangle: 1). The pipeline's clouds round a small box's vertical edges, so its sides fit a circle as
+    well as a can's; its top's outline keeps its corners. False with too few points to tell."""
+    import cv2
+
+    if len(xy) < TOP_MIN_POINTS:
+        return False
+    pts = np.asarray(xy, dtype=np.float32)
+    (_, _), (w, h), _ = cv2.minAreaRect(pts)
+    return float(cv2.contourArea(cv2.convexHull(pts))) > TOP_ROUND_MAX * max(float(w * h), 1e-12)
 
 
 def _cylinder_fit(geo: ObjectGeometry, P: np.ndarray, N: np.ndarray, support: Support, tol: float, views) -> float:
@@ -413,6 +430,8 @@ def _cylinder_fit(geo: ObjectGeometry, P: np.ndarray, N: np.ndarray, support: Su
     rho = np.linalg.norm(xy - c, axis=1)
     elev = support.elevation(P)
     top = float(np.percentile(elev, 99.5))
+    if _top_outline_square(xy[elev > top - TOP_BAND]):
+        return 0.0
     d = np.minimum(np.abs(rho - r), np.where(rho <= r + tol, np.abs(elev - top), np.inf))
     closed = (_top_cover(xy, elev, c, r, top) if views is None or not len(views)
               else _top_closed(xy, elev, c, r, top, support, views))
