@@ -146,11 +146,11 @@ def _groups(G: RegionGraph, patch_of_voxel: np.ndarray) -> dict[int, np.ndarray]
 
 def _resting_on(G: RegionGraph, S: int, big: dict, st: _Stats, params: SegmentParams) -> int | None:
     """The region a floating region S rests on across a gap in the cloud, or None (the rule ``resting_parts``
-    of attach_parts): S does not reach the
-    table, and N, which does, has its top at most ``REST_GAP`` below S's bottom (or overlaps it by
-    ``STACK_TOL``) and holds 90% of S inside its footprint; not when S is an object standing on N
-    (:func:`is_object_on`). The region graph links only touching voxels, and where the cloud misses a
-    concave junction (a duck's neck, seen from above by wrist cameras) the part above has no neighbour."""
+    of attach_parts): S does not reach the table, and N, which does, has its top at most ``REST_GAP`` below
+    S's bottom (or overlaps it by ``STACK_TOL``) and holds 90% of S inside its footprint; not when S is an
+    object standing on N (:func:`is_object_on`). The region graph links only touching voxels, and where the
+    cloud misses a concave junction (a duck's neck, seen from above by wrist cameras) the part above has no
+    neighbour."""
     if "resting_parts" in params.skip or reaches_table(st.bottom[S], st.top[S]):
         return None
     best, share = None, 0.0
@@ -213,11 +213,10 @@ def attach_parts(G: RegionGraph, patch_of_voxel: np.ndarray, xyz: np.ndarray, pa
                       and st.bottom[S] >= st.bottom[N] + FLOAT_RISE and st.top[S] > st.top[N] + STACK_TOL / 2
                       and nS >= FLOAT_SHARE * len(big[N])):
                     cands.append(N)  # thin, held up beside N's upper part, rising above it (a bunny's ears)
-            if not cands:
-                below = _resting_on(G, S, big, st, params)
-                cands = [below] if below is not None else []
-            if cands:
-                G.merge(S, max(cands, key=lambda n: G.affinity(S, n) if n in G.adj[S] else -np.inf))
+            # a neighbour (the best-linked one), else the region S rests on across a gap (no junction)
+            target = max(cands, key=lambda n: G.affinity(S, n)) if cands else _resting_on(G, S, big, st, params)
+            if target is not None:
+                G.merge(S, target)
                 merges += 1
                 did = True
                 break
