@@ -138,20 +138,22 @@ def outcome(rec: dict) -> dict:
             "stage": "" if ok else rec.get("failed_stage", ""), "reason": reason}
 
 
-def run_one(scene: Path, work: Path, task: str, masks: bool = False, leave_out: tuple = ()) -> dict:
-    """One task run (``leave_out``: planner fallbacks not tried, ``TaskOptions.leave_out``); returns the facts
-    the table needs."""
+def run_one(scene: Path, work: Path, task: str, masks: bool = False, leave_out: tuple = (),
+            object_id: int | None = None, out: Path | None = None) -> dict:
+    """One task run (``leave_out``: planner fallbacks not tried, ``TaskOptions.leave_out``; ``object_id``: the
+    object to move, None for the task's own choice; ``out``: its output folder, default ``work/tasks/TASK``);
+    returns the facts the table needs."""
     from bimanual_app.io_utils import InputError
     from bimanual_app.tasks import TaskOptions, run_task
 
-    out = work / "tasks" / task
+    out = work / "tasks" / task if out is None else out
     t = time.perf_counter()
     row = {"task": task, "planned": False, "estimate_ok": False, "reality_ok": False, "truth_ok": False,
            "stage": "", "reason": "", "timings": {}, "scene": scene.name}
     try:
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-            res = run_task(TaskOptions(task, str(scene), work=str(work), out=str(out), quiet=True, record=False,
-                                       compare_truth=True, masks=masks, leave_out=tuple(leave_out)))
+            res = run_task(TaskOptions(task, str(scene), object_id=object_id, work=str(work), out=str(out), quiet=True,
+                                       record=False, compare_truth=True, masks=masks, leave_out=tuple(leave_out)))
         rec = res.record
         row["timings"] = dict(res.timings)
         row.update(outcome(rec))

@@ -10,7 +10,7 @@ bench bases (``--base`` of two runs on the same scenes), which have a hand-over 
 
 ``--check`` also runs the hand-over task of every object gained (on AFTER's stage outputs) and lost (on
 BEFORE's), each judged as the bench judges a scene (``bench.tasks.outcome``: approved by its preview on the
-reconstruction and holding in the ground-truth world), as Ray tasks (``bench/_ray.py``).
+reconstruction and holding in the ground-truth world; ``bench.tasks.run_one``), as Ray tasks (``bench/_ray.py``).
 """
 
 from __future__ import annotations
@@ -50,20 +50,12 @@ def pair_objects(before: dict[ObjectKey, dict], after: dict[ObjectKey, dict]) ->
 
 
 def check_job(job: dict) -> dict:
-    """Run one object's hand-over on a base's stage outputs (a Ray task); the bench's success facts."""
-    import contextlib
-    import io
-
-    from bench.tasks import outcome
-    from bimanual_app.tasks import TaskOptions, run_task
+    """Run one object's hand-over on a base's stage outputs (a Ray task): ``bench.tasks.run_one``'s facts."""
+    from bench.tasks import run_one
 
     base, scene, oid = Path(job["base"]), job["scene"], job["object"]
-    work = base / job["mode"] / scene
-    out = Path(job["out"]) / f"{scene}_{oid}"
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-        res = run_task(TaskOptions("handover", str(base / "scenes" / scene), object_id=oid, work=str(work),
-                                   out=str(out), quiet=True, record=False, compare_truth=True))
-    return {**job, **outcome(res.record)}
+    return {**job, **run_one(base / "scenes" / scene, base / job["mode"] / scene, "handover", object_id=oid,
+                             out=Path(job["out"]) / f"{scene}_{oid}")}
 
 
 def verdict(row: dict) -> str:
