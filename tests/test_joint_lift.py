@@ -7,6 +7,7 @@ import pytest
 
 from bimanual_app.kinematics._lift import (
     LIFT_COSTS,
+    LIFT_PATHS,
     LiftArm,
     along,
     arms_ik,
@@ -61,6 +62,51 @@ def test_object_motion_starts_still_and_ends_at_the_candidate():
     for k in (0, 3, len(T) // 2, len(T) - 1):
         assert np.allclose(along(c, s[k])[i], T[k])
     assert np.allclose(along(c, 1.0), c.T_end)
+
+
+def test_lift_paths_differ_only_in_where_along_the_rise_the_object_moves_sideways():
+    c = lift_candidates(CENTRE, UP, 0.15, 0.105, yaws=(0.0, 0.4))
+    i = int(np.flatnonzero((c.yaw > 0) & (np.linalg.norm(c.shift, axis=1) > 0.05))[0])
+    assert np.allclose(object_motion(c, i, path=LIFT_PATHS[0]), object_motion(c, i))  # the default is the first
+    for name, start, end in LIFT_PATHS:
+        T = object_motion(c, i, path=(name, start, end))
+        assert np.allclose(T[0], np.eye(4)) and np.allclose(T[-1], c.T_end[i])
+        assert np.all(np.diff(T[:, :3, 3] @ UP) > 0)  # the rise is linear whatever the path
+        s = np.linspace(0.0, 1.0, len(T))
+        before, after = s <= start + 1e-9, s >= end - 1e-9
+        assert np.allclose(T[before, :3, :3], np.eye(3))  # not turned yet
+        horizontal = T[before, :3, 3] - np.outer(T[before, :3, 3] @ UP, UP)
+        assert np.allclose(horizontal, 0.0)  # nor shifted: straight up
+        assert np.allclose(T[after, :3, :3], c.T_end[i, :3, :3])  # turned all the way
+    rise_first = object_motion(c, i, path=LIFT_PATHS[1])
+    assert np.allclose(rise_first[: len(rise_first) // 2, :3, :3], np.eye(3))  # rises half way before moving
+
+
+def test_a_lift_that_would_sweep_the_object_into_a_low_neighbour_rises_first():
+    """A shifted lift end pose whose usual path (sideways over the first half of the rise) would carry the object
+    into a 4 cm neighbour beside it is taken along the path that rises half way first, and its name says so."""
+    from bimanual_app.robots import load_robot
+    from bimanual_app.tasks._motion import TaskMotion
+    from bimanual_app.tasks._planners import _clear_lift_path
+    from tests._task_fixtures import FIX_T_B1_B2, box_surface_points, table_points
+
+    obj = box_surface_points([0.30, 0.0, 0.04], [0.04, 0.04, 0.08], 1500, visible_only=False)
+    low = box_surface_points([0.345, 0.0, 0.02], [0.03, 0.08, 0.04], 1500, seed=2)  # 1.5 cm off its +x face
+    motion = TaskMotion(load_robot("piper"), FIX_T_B1_B2, np.vstack([table_points(), obj, low]), obj, obj,
+                        cut_radius=0.0005)
+    c = lift_candidates(obj.mean(axis=0), UP, 0.15, 0.105, radius=0.08, n_heights=1, yaws=(0.0,))
+    towards = int(np.argmax(c.shift[:, 0]))  # 8 cm towards the neighbour
+    assert motion.object_clear(object_motion(c, towards))  # the usual path meets it
+    T, how, problem = _clear_lift_path(motion, c, towards, UP)
+    assert problem == "" and how.endswith(LIFT_PATHS[1][0])
+    assert np.allclose(T, object_motion(c, towards, path=LIFT_PATHS[1]))
+    straight = int(np.flatnonzero(np.linalg.norm(c.shift, axis=1) == 0)[0])
+    T, how, problem = _clear_lift_path(motion, c, straight, UP)  # straight up: one path, its plain name
+    assert problem == "" and how == "up 15.0 cm"
+    blocked = TaskMotion(load_robot("piper"), FIX_T_B1_B2, np.vstack([table_points(), obj, low + [0, 0, 0.11]]),
+                         obj, obj, cut_radius=0.0005)  # the neighbour raised over the end pose: every path meets it
+    T, how, problem = _clear_lift_path(blocked, c, towards, UP)
+    assert T is None and "meets the scene" in problem
 
 
 def _ramp_reach(T, x0):

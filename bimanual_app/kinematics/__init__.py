@@ -16,7 +16,8 @@ Two arms holding one object (``_lift``, used by the grasp stage and the joint-gr
     lift_candidates(centre, up, lift, lift_min, ...) -> LiftCandidates   (sampled end poses of the object's lift)
     arms_ik(arms {name: LiftArm}, S {name: T_b1_g}, candidates) -> {name: (Q, ok)}   (batched, staged IK)
     lift_costs(candidates, ik, arms, terms=LIFT_COSTS) -> {term: (N,)};  rank_lifts(...) -> (K,) best first
-    object_motion(candidates, i) -> (K, 4, 4)   (the object's motion along candidate i, 1 cm steps)
+    object_motion(candidates, i, path=LIFT_PATHS[0]) -> (K, 4, 4)   (the object's motion along candidate i, 1 cm
+                 steps; LIFT_PATHS: over which part of the rise it moves sideways)
     along(candidates, s) -> (N, 4, 4)   (every candidate's motion at fraction s of its lift)
 
 Straight moves on one IK branch (``_path``, the task planner's Cartesian moves):
@@ -30,6 +31,7 @@ from __future__ import annotations
 from bimanual_app.kinematics._ik import IKResult, IKSolver
 from bimanual_app.kinematics._lift import (
     LIFT_COSTS,
+    LIFT_PATHS,
     LiftArm,
     LiftCandidates,
     along,
@@ -41,7 +43,7 @@ from bimanual_app.kinematics._lift import (
 )
 from bimanual_app.kinematics._path import MAX_JOINT_JUMP, WAYPOINT_STEP, PathFailure, follow_poses, line_poses
 
-__all__ = ["IKResult", "IKSolver", "solve_ik", "LIFT_COSTS", "LiftArm", "LiftCandidates", "along", "arms_ik",
+__all__ = ["IKResult", "IKSolver", "solve_ik", "LIFT_COSTS", "LIFT_PATHS", "LiftArm", "LiftCandidates", "along", "arms_ik",
            "lift_candidates", "lift_costs", "object_motion", "rank_lifts", "MAX_JOINT_JUMP", "WAYPOINT_STEP",
            "PathFailure", "follow_poses", "line_poses"]
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from bimanual_app.transforms import check_shape, perpendicular_basis, so3_exp
 
-__all__ = ["LiftCandidates", "LiftArm", "LiftCost", "LIFT_COSTS", "lift_candidates", "along", "object_motion", "arms_ik",
+__all__ = ["LiftCandidates", "LiftArm", "LiftCost", "LIFT_COSTS", "LIFT_PATHS", "lift_candidates", "along", "object_motion", "arms_ik",
            "lift_costs", "rank_lifts"]
 
 
@@ -78,21 +78,39 @@ def lift_candidates(centre: np.ndarray, up: np.ndarray, lift: float, lift_min: f
     return LiftCandidates(_motion(centre, up, H, shifts[Si], Y), H, shifts[Si], Y, centre, up)
 
 
+# How the object goes to a lift's end pose: over which part of the rise (fractions of it) the horizontal shift
+# and the turn are done. Shifting early takes the object away from the table and the arm's reach limit
+# first; rising first takes it clear of a neighbour's top before it moves sideways. The first is the one the
+# IK search follows (``along``); the planner tries the others where the first sweeps the object through the map.
+LIFT_PATHS: tuple[tuple[str, float, float], ...] = (
+    ("", 0.0, 0.5),
+    ("rising before it moves sideways", 0.5, 1.0),
+    ("moving sideways all the way up", 0.0, 1.0),
+)
+
+
+def _side(s: np.ndarray, start: float, end: float) -> np.ndarray:
+    """The fraction of the shift and turn done at fractions ``s`` of the rise (0 before ``start``, 1 after ``end``)."""
+    return np.clip((np.asarray(s, dtype=np.float64) - start) / (end - start), 0.0, 1.0)
+
+
 def along(c: LiftCandidates, s: float) -> np.ndarray:
-    """(N, 4, 4) every candidate's object motion at fraction ``s`` (0..1) of its lift: the rise is linear,
-    the horizontal shift and the turn are done over its first half."""
-    side = min(2.0 * s, 1.0)
+    """(N, 4, 4) every candidate's object motion at fraction ``s`` (0..1) of its lift along the first of
+    ``LIFT_PATHS``: the rise is linear, the horizontal shift and the turn are done over its first half."""
+    side = float(_side(s, *LIFT_PATHS[0][1:]))
     return _motion(c.centre, c.up, s * c.height, side * c.shift, side * c.yaw)
 
 
-def object_motion(c: LiftCandidates, i: int, step: float = 0.01) -> np.ndarray:
+def object_motion(c: LiftCandidates, i: int, step: float = 0.01, path: tuple[str, float, float] = LIFT_PATHS[0]
+                  ) -> np.ndarray:
     """(K, 4, 4) the object's motion to candidate ``i``'s end pose, waypoints about ``step`` m apart: the rise
-    is linear, the horizontal shift and the turn are done over its first half (away from the table and the
-    neighbours first, then the rest of the way up). Starts at the identity."""
+    is linear, the horizontal shift and the turn are done over the part of it ``path`` (one of ``LIFT_PATHS``:
+    name, start and end fractions) says; by default its first half (away from the table and the neighbours
+    first, then the rest of the way up). Starts at the identity."""
     travel = float(np.hypot(c.height[i], np.linalg.norm(c.shift[i])))
     n = max(2, int(np.ceil(travel / step)) + 1)
     s = np.linspace(0.0, 1.0, n)
-    side = np.minimum(2 * s, 1.0)
+    side = _side(s, path[1], path[2])
     return _motion(c.centre, c.up, s * c.height[i], side[:, None] * c.shift[i], side * c.yaw[i])
 
 

@@ -527,11 +527,12 @@ def _lift_strategies(P: _Pair, S: dict, q: dict, lift: float) -> Iterable[Strate
     ``lift`` down to LIFT_MIN, shifted up to LIFT_RADIUS, turned about ``up``), both arms' IK followed
     along all of them in one batch per stage (:func:`~bimanual_app.kinematics._lift.arms_ik`), the ones both arms follow ranked by
     the named costs of ``kinematics._lift.LIFT_COSTS``; those
-    whose swept object is clear of the map are tried with the straight path both arms follow, at most
+    whose swept object is clear of the map (along the first of ``kinematics.LIFT_PATHS`` that keeps it clear:
+    :func:`_clear_lift_path`) are tried with the straight path both arms follow, at most
     LIFT_TRIES_PER_HEIGHT at each height (failures at one height share their cause: the top of an arm's
     reach). Each attempt returns ``(trajectories, object motion (K,4,4), how, height)``. Raises PlanFailure
     when both arms follow none of the lifts, or every one they follow sweeps the object through the map."""
-    from bimanual_app.kinematics import arms_ik, lift_candidates, lift_costs, object_motion, rank_lifts
+    from bimanual_app.kinematics import arms_ik, lift_candidates, lift_costs, rank_lifts
 
     low = min(LIFT_MIN, lift) if _fallback(P.motion, "lower-joint-lift") else lift
     c = lift_candidates(P.motion.object_points.mean(axis=0), P.up, lift, low, radius=LIFT_RADIUS,
@@ -553,10 +554,10 @@ def _lift_strategies(P: _Pair, S: dict, q: dict, lift: float) -> Iterable[Strate
                                    f"shifted up to {LIFT_RADIUS * 100:.0f} cm, turned up to "
                                    f"{np.degrees(np.abs(c.yaw).max()):.0f} deg)")
 
-    def attempt(T_moves, i):
+    def attempt(T_moves, how, i):
         with P.motion.context("cut", openings=P.opening_hold):
             tr = P.motion.cartesian({a: T_moves @ S[a] for a in ARMS}, q)
-        return tr, T_moves, _lift_name(c, i), float(c.height[i])
+        return tr, T_moves, how, float(c.height[i])
 
     tries: dict = {}
     first_clash = None
@@ -564,15 +565,31 @@ def _lift_strategies(P: _Pair, S: dict, q: dict, lift: float) -> Iterable[Strate
         h = round(float(c.height[i]), 4)
         if tries.get(h, 0) >= LIFT_TRIES_PER_HEIGHT:
             continue
-        T_moves = object_motion(c, i)
-        clash = P.motion.object_clear(T_moves, up=P.up)
+        T_moves, how, clash = _clear_lift_path(P.motion, c, i, P.up)
         if clash:
-            first_clash = first_clash or clash[0]
+            first_clash = first_clash or clash
             continue
         tries[h] = tries.get(h, 0) + 1
-        yield Strategy(_lift_name(c, i), partial(attempt, T_moves, i))
+        yield Strategy(how, partial(attempt, T_moves, how, i))
     if not tries:  # every lift both arms reach sweeps the object through the scene
         raise PlanFailure("validation", first_clash or "no lift to try")
+
+
+def _clear_lift_path(motion: TaskMotion, c, i: int, up: np.ndarray) -> tuple:
+    """The first of ``kinematics.LIFT_PATHS`` to lift candidate ``i``'s end pose along which the swept object
+    keeps clear of the map (only the first where the lift neither shifts nor turns: they are the same path).
+    Returns ``(T_moves (K,4,4), how, "")``, or ``(None, "", the first path's problem)`` when none is clear."""
+    from bimanual_app.kinematics import LIFT_PATHS, object_motion
+
+    moves = np.linalg.norm(c.shift[i]) > 1e-6 or abs(c.yaw[i]) > 1e-9
+    first = ""
+    for path in LIFT_PATHS if moves else LIFT_PATHS[:1]:
+        T_moves = object_motion(c, i, path=path)
+        clash = motion.object_clear(T_moves, up=up)
+        if not clash:
+            return T_moves, ", ".join(p for p in (_lift_name(c, i), path[0]) if p), ""
+        first = first or clash[0]
+    return None, "", first
 
 
 def _lift_name(c, i: int) -> str:
