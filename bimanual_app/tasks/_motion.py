@@ -402,17 +402,8 @@ class TaskMotion:
         that near (where the object touches a neighbour) are left to the physics preview. The object's sides
         are taken ``SIDE_TOLERANCE`` in first (its estimated body is that far off)."""
         up = np.array([0.0, 0.0, 1.0]) if up is None else up
-        P = _sides_in(self.object_points, up, SIDE_TOLERANCE)
+        P, touching = self._carried_at_rest(up)
         smap = self.cut_map
-        # points that touch a neighbour where the object lies (objects often stand against each other) are
-        # not checked: a lift slides them along it, and at the map's sampling and noise a slide cannot be
-        # told from a push (the physics preview judges that contact); every other point keeps
-        # OBJECT_CLEARANCE from the map
-        # (searches bounded by the distances that matter: the object is cut out of this map, so an unbounded
-        # nearest-neighbour search from each of its points walks much of the tree)
-        near = OBJECT_CLEARANCE + TOUCH_BAND
-        d0, _ = self._cut_tree.query(P, k=1, distance_upper_bound=2 * near)
-        touching = d0 < near
         for k, T in enumerate(T_moves):
             if float(T[:3, 3] @ up) < skip_rise and np.allclose(T[:3, :3], np.eye(3), atol=1e-6):
                 continue
@@ -426,6 +417,25 @@ class TaskMotion:
                 return [f"the carried object meets the scene at step {k} of {len(T_moves)} "
                         f"(near {np.round(Pk[inside][bad][0], 3).tolist()})"]
         return []
+
+    def _carried_at_rest(self, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The carried object's points with their sides taken in (``_sides_in``; (M, 3)) and which of them touch
+        a neighbour where it lies ((M,) bool), for ``up`` (3,) and the current cut map: the same for every motion
+        ``object_clear`` checks (a lift tries many), so kept until the map or ``up`` changes."""
+        key = (self.cut_map, tuple(np.asarray(up, dtype=np.float64).tolist()))
+        kept = getattr(self, "_carried_at_rest_", None)
+        if kept is None or kept[0] is not key[0] or kept[1] != key[1]:
+            P = _sides_in(self.object_points, up, SIDE_TOLERANCE)
+            # points that touch a neighbour where the object lies (objects often stand against each other) are
+            # not checked: a lift slides them along it, and at the map's sampling and noise a slide cannot be
+            # told from a push (the physics preview judges that contact); every other point keeps
+            # OBJECT_CLEARANCE from the map
+            # (searches bounded by the distances that matter: the object is cut out of this map, so an unbounded
+            # nearest-neighbour search from each of its points walks much of the tree)
+            near = OBJECT_CLEARANCE + TOUCH_BAND
+            d0, _ = self._cut_tree.query(P, k=1, distance_upper_bound=2 * near)
+            self._carried_at_rest_ = (*key, P, d0 < near)
+        return self._carried_at_rest_[2], self._carried_at_rest_[3]
 
     def grippers_clear(self, lifts, S: dict, openings: dict, among: np.ndarray | None = None) -> np.ndarray:
         """(C,) bool: the lifts ``lifts`` (:class:`~bimanual_app.kinematics.LiftCandidates`, C of them) along
