@@ -211,11 +211,21 @@ def _lift_terms(geo: ObjectGeometry, c1: np.ndarray, c2: np.ndarray, sep: float,
     return imb, 0.2 * min(1.0, sep / (0.8 * geo.extent[0])), 0  # far apart: steadier
 
 
+def _nearest_centre(centre: np.ndarray, span: np.ndarray | None, p: np.ndarray) -> np.ndarray:
+    """(3,) the point of the segment from ``centre`` (3,) to ``centre + span`` (the places the object's centre may
+    be; ``span`` None: only ``centre``) nearest to ``p`` (3,)."""
+    if span is None:
+        return centre
+    t = float(np.clip((p - centre) @ span / max(float(span @ span), 1e-12), 0.0, 1.0))
+    return centre + t * span
+
+
 def _ranked_pairs(geo: ObjectGeometry, up: np.ndarray, primary: ArmGrasps, secondary: ArmGrasps, c1: np.ndarray,
                   c2: np.ndarray, max_imbalance: float, max_height_gap: float, min_spread: float,
-                  stats: dict) -> list[tuple]:
+                  stats: dict, span: np.ndarray | None = None) -> list[tuple]:
     """Every balanced pair as ``(score, i, j, imbalance, separation)``, best first (within tiers, see
-    ``_push_terms``)."""
+    ``_push_terms``); balance is measured from the nearest place the centre may be (``span``, see
+    :func:`joint_pairs`)."""
     kind = primary.grasps.kind
     cand = []
     for i in range(len(primary)):
@@ -224,7 +234,7 @@ def _ranked_pairs(geo: ObjectGeometry, up: np.ndarray, primary: ArmGrasps, secon
             sep = float(np.linalg.norm(d))
             if sep < 1e-6:
                 continue
-            mid = _horiz(0.5 * (c1[i] + c2[j]) - geo.centre, up)
+            mid = _horiz(0.5 * (c1[i] + c2[j]) - _nearest_centre(geo.centre, span, 0.5 * (c1[i] + c2[j])), up)
             imb = float(np.linalg.norm(mid)) / (0.5 * sep)
             terms = (_push_terms(primary, secondary, i, j, c1, c2, up, d, sep, mid, max_height_gap) if kind == "push"
                      else _lift_terms(geo, c1[i], c2[j], sep, imb, min_spread))
@@ -246,19 +256,21 @@ def joint_pairs(geo: ObjectGeometry, support: Support, primary: ArmGrasps, secon
                 collider: GripperCollider, check: TwoArmCheck | None, max_pairs: int = 5, gap: float = 0.02,
                 max_imbalance: float = 0.25, max_checks: int = 60, max_height_gap: float = 0.015,
                 min_spread: float = 0.4, distinct: float = 0.03,
-                lift: PairLift | None = None) -> tuple[list[JointPair], dict]:
+                lift: PairLift | None = None, centre_span: np.ndarray | None = None) -> tuple[list[JointPair], dict]:
     """Balanced, reachable, collision-free pairs from each arm's reachable grasps of one kind: the best
     first, then the pairs whose two contacts are not both within ``distinct`` m of an earlier pair's (a
     pair that fails for where it holds the object is not followed by the same pair again), then the rest;
     at most ``max_pairs``. With ``lift``, the pairs both arms cannot lift the object from come after all
-    those they can (kept: the check is kinematic, the planner has the last word)."""
+    those they can (kept: the check is kinematic, the planner has the last word). ``centre_span`` (3,): the
+    object's centre may lie anywhere from ``geo.centre`` to ``geo.centre + centre_span`` (an object whose far
+    end no camera saw, ``_push.open_ends``); a pair is balanced about the nearest of those places."""
     stats = {"candidates": 0, "balanced": 0, "grippers_apart": 0, "arms_apart": 0, "liftable": 0}
     if len(primary) == 0 or len(secondary) == 0:
         return [], stats
     kind = primary.grasps.kind
     c1, c2 = _contact_centres(primary), _contact_centres(secondary)
     cand = _ranked_pairs(geo, support.up, primary, secondary, c1, c2, max_imbalance, max_height_gap, min_spread,
-                         stats)
+                         stats, centre_span)
     out: list[JointPair] = []
     similar: list[JointPair] = []
     stuck: list[JointPair] = []  # the arms cannot lift the object from them

@@ -51,7 +51,7 @@ from ._objects import (
     primitive_fit,
     unseen_space,
 )
-from ._push import PushParams, push_contacts
+from ._push import PushParams, open_ends, push_contacts
 from ._unseen import carved_unseen
 
 __all__ = ["PlanParams", "ObjectPlan", "GraspPlan", "plan_grasps", "plan_object"]
@@ -81,6 +81,9 @@ class PlanParams:
     min_object_points: fewer points than this is an empty segment.
     joint_for_all: also look for two-arm pairs on objects one arm can lift (when they are long enough).
     max_joint_pairs: two-arm pairs kept per kind (push, pinch).
+    open_end_shift: an object with an open end (a face no camera saw, nothing seen beyond it: a carton whose far
+        end was out of view) may be longer than its seen box; a two-arm squeeze is balanced about any place of
+        its centre up to this fraction of its seen length towards that end (0: only the seen box's centre).
     joint_lift_check: two-arm grasps are first looked for among those both arms can also carry this far
         straight up (the task's lifts are 11-15 cm); 0 turns the check off.
     handover: plan a hand-over for objects one arm can lift (needs both arms).
@@ -126,6 +129,7 @@ class PlanParams:
     handover: bool = True
     handover_givers: tuple[str, ...] = ARM_NAMES
     max_joint_pairs: int = 5
+    open_end_shift: float = 0.25
     joint_lift_check: float = 0.12
     workspace_radius: float = 1.0
     retry_factor: int = 4
@@ -422,8 +426,9 @@ def _joint_pairs(plan: ObjectPlan, support: Support, collider: GripperCollider, 
                                                        prefer=facing)
         plan.stats["push_reach"] = {n: {"reachable": len(a), "tried": a.tried, "why_not": a.reasons}
                                     for n, a in plan.push_reach.items()}
+        span = _centre_span(geo, others, params)
         pp, plan.stats["joint_push"] = joint_pairs(geo, support, plan.push_reach["primary"], plan.push_reach["secondary"],
-                                                   collider, check, params.max_joint_pairs, lift=lift)
+                                                   collider, check, params.max_joint_pairs, lift=lift, centre_span=span)
         pairs += pp
     if plan.grasps is not None and len(plan.grasps) and long_side >= params.joint_min_extent:
         # pinches towards the two ends (the single-arm ranking favours the middle): each half of the object
@@ -439,6 +444,17 @@ def _joint_pairs(plan: ObjectPlan, support: Support, collider: GripperCollider, 
                                                     lift=lift)
         pairs += pp
     return pairs
+
+
+def _centre_span(geo, others: SceneOctree, params: PlanParams) -> np.ndarray | None:
+    """(3,) how far the object's centre may lie past the centre of its seen box, towards its open ends (faces no
+    camera saw, with nothing seen beyond: :func:`_push.open_ends`), or None when it has none: up to
+    ``params.open_end_shift`` of its seen length along each (an end open both ways cancels)."""
+    ends = open_ends(geo, others, params.push)
+    if not ends or params.open_end_shift <= 0:
+        return None
+    span = sum(params.open_end_shift * float(geo.extent[np.argmax(np.abs(geo.T_b1_box[:3, :2].T @ n))]) * n for n in ends)
+    return span if float(np.linalg.norm(span)) > 1e-6 else None
 
 
 def _handover(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: GripperCollider,

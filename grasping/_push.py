@@ -35,7 +35,7 @@ from ._collision import GripperCollider, SceneOctree
 from ._gripper import GripperModel
 from ._objects import ObjectGeometry, Support
 
-__all__ = ["PushParams", "push_contacts"]
+__all__ = ["PushParams", "push_contacts", "open_ends"]
 
 
 @dataclass(frozen=True)
@@ -176,6 +176,33 @@ def _seen_beyond(geo: ObjectGeometry, others: SceneOctree, n: np.ndarray, t: np.
     return beyond.sum() >= params.beyond_min_points
 
 
+def _open_end(geo: ObjectGeometry, others: SceneOctree, axis: int, sign: float, params: PushParams,
+              near_face: np.ndarray) -> bool:
+    """Whether the box's face on ``axis`` at ``sign`` is no face at all: none of its own points was seen (it is
+    only filled in by the symmetric completion) and nothing of the scene was seen beyond it, so the object may
+    go on past it. ``near_face`` (N,) bool: the object's points near that face."""
+    n = sign * geo.T_b1_box[:3, axis]
+    if (near_face & (geo.normals @ n > 0.7) & geo.observed).any():
+        return False
+    t = np.cross(geo.T_b1_box[:3, 2], n)
+    return not _seen_beyond(geo, others, n, t, 0.5 * geo.extent[axis], geo.extent[1 - axis], params)
+
+
+def open_ends(geo: ObjectGeometry, others: SceneOctree, params: PushParams = PushParams()) -> list[np.ndarray]:
+    """The outward normals (3,) of the object's box faces it may go on past (:func:`_open_end`: a carton whose
+    far end no camera saw, its box cut short where the views stopped)."""
+    out = []
+    rel = geo.points - geo.centre
+    for axis in (0, 1):
+        for sign in (1.0, -1.0):
+            n = sign * geo.T_b1_box[:3, axis]
+            near = (rel @ n > 0.5 * geo.extent[axis] - 0.02) & (np.abs(rel @ np.cross(geo.T_b1_box[:3, 2], n))
+                                                               < 0.5 * geo.extent[1 - axis])
+            if near.sum() >= 2 * params.min_pad_points and _open_end(geo, others, axis, sign, params, near):
+                out.append(n)
+    return out
+
+
 def _face(geo: ObjectGeometry, others: SceneOctree, axis: int, sign: float, params: PushParams,
           st: dict) -> _Face | None:
     """The face of the box on ``axis`` at ``sign``, or None when it may not be pushed (not seen, or only
@@ -190,11 +217,9 @@ def _face(geo: ObjectGeometry, others: SceneOctree, axis: int, sign: float, para
     if near_face.sum() < 2 * params.min_pad_points:
         return None  # a face the cameras did not see: no blind pushes
     st["faces_seen"] += 1
-    if not (near_face & (N @ n > 0.7) & geo.observed).any():
-        # a face only completed by symmetry: pushed only where the scene beyond it was seen
-        if not _seen_beyond(geo, others, n, t, half, ext[1 - axis], params):
-            st["unseen_beyond"] += 1
-            return None
+    if _open_end(geo, others, axis, sign, params, near_face):
+        st["unseen_beyond"] += 1
+        return None
     # the face's depth from its own points (normals along n), not from the sides' edge points near it
     own_face = near_face & (N @ n > 0.7)
     face_off = float(np.median(along[own_face])) if own_face.sum() >= params.min_pad_points \

@@ -448,6 +448,58 @@ def test_a_face_only_filled_in_is_pushed_only_where_the_scene_beyond_it_was_seen
     assert np.any(push.extra["squeeze"][:, 1] > 0.9)  # pressing the hidden face towards +y
 
 
+def test_open_ends_name_the_end_the_views_stopped_at():
+    """The end of a carton where the views stopped (no point of its face, nothing seen beyond it) is open; a far
+    face hidden by the box itself, with the table seen beyond it, is not."""
+    from grasping import PushParams, SceneOctree, estimate_support, object_geometry
+    from grasping._push import open_ends
+
+    box = Obj("box", (0.3, 0.0), (0.16, 0.32, 0.10), 0.0)
+    P, L = make_cloud([box], table_size=(0.8, 0.8))
+
+    def ends(keep):
+        sup = estimate_support(P[keep], L[keep])
+        geo = object_geometry(0, P[keep & (L == 0)], sup, background=P[keep & (L < 0)])
+        return open_ends(geo, SceneOctree(P[keep & (L != 0)], PlanParams().octree_resolution), PushParams())
+
+    cut = ends(P[:, 1] > -0.05)  # the views end at y = -0.05
+    assert len(cut) == 1 and cut[0][1] < -0.99
+    hidden = (L == 0) & (P[:, 1] < -0.16 + 0.004)  # the -y face unseen, the table beyond it seen
+    assert ends(~hidden) == []
+    assert ends(np.ones(len(P), bool)) == []
+
+
+def test_a_squeeze_of_a_carton_cut_short_is_balanced_about_where_its_centre_may_be():
+    """A carton seen over part of its length (its far end out of view) has its seen box's centre short of the
+    real one: a squeeze across it may be balanced about any place of the centre up to ``open_end_shift`` of
+    the seen length towards the open end, and about none beyond; 0 keeps the seen centre only."""
+    from grasping._joint import _nearest_centre
+
+    c, span = np.zeros(3), np.array([0.0, -0.05, 0.0])
+    assert np.allclose(_nearest_centre(c, span, np.array([0.1, -0.03, 0.0])), [0.0, -0.03, 0.0])
+    assert np.allclose(_nearest_centre(c, span, np.array([0.1, -0.09, 0.0])), [0.0, -0.05, 0.0])
+    assert np.allclose(_nearest_centre(c, span, np.array([0.1, 0.02, 0.0])), c)  # never away from the open end
+    assert np.allclose(_nearest_centre(c, None, np.array([0.1, -0.03, 0.0])), c)
+
+    box = Obj("box", (0.3, 0.0), (0.16, 0.32, 0.10), 0.0)
+    P, L = make_cloud([box], table_size=(0.8, 0.8))
+    cut = P[:, 1] > -0.05  # seen from y = -0.05 to 0.16: the seen box's centre at y = 0.055
+    plans = {}
+    for shift in (0.0, 0.25):
+        params = PlanParams(handover=False, retry_factor=1, open_end_shift=shift)
+        plans[shift] = plan_grasps(scene_cloud(P[cut], L[cut]), arms=accept_all_arms(T12), T_b1_b2=T12,
+                                   params=params).objects[0]
+    seen_y = plans[0.0].geometry.centre[1]
+    assert 0.04 < seen_y < 0.07
+    assert plans[0.25].stats["joint_push"]["balanced"] > plans[0.0].stats["joint_push"]["balanced"]
+    for shift, op in plans.items():
+        lowest = seen_y - shift * plans[0.0].geometry.extent[0]  # the farthest the centre may be towards -y
+        for pair in op.joint:
+            mid = 0.5 * sum(_centres(op, pair))
+            off = max(0.0, lowest - mid[1], mid[1] - seen_y)  # from the nearest place the centre may be
+            assert off <= 0.25 * 0.5 * pair.separation + 1e-6
+
+
 def test_steep_push_contacts_lean_about_the_face_normal():
     """A steep gripper (fingers hanging beside the face) also comes leaned about the face normal: its
     approach turned along the face, the pad still flat on it. An arm beside the face rather than in front
