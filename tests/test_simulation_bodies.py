@@ -100,6 +100,11 @@ def test_a_body_fitted_to_part_of_a_long_object_stands_for_it():
     inside = box_shape(make_T(np.eye(3), [0.30, -0.1, 0.06]), [0.25, 0.15, 0.11])
     half_out = box_shape(make_T(np.eye(3), [0.35, -0.16, 0.06]), [0.10, 0.16, 0.12])
     assert match_truth({1: half_out, 2: inside}, truth) == {2: 0}
+    # a fragment wholly inside it (a few points split off the object) does not take it from the body that fills it
+    fragment = box_shape(make_T(np.eye(3), [0.20, -0.1, 0.10]), [0.03, 0.03, 0.02])
+    body = box_shape(make_T(np.eye(3), [0.35, -0.1, 0.06]), [0.50, 0.22, 0.13])  # pokes out past it: share < 1
+    assert match_truth({5: fragment, 6: body}, truth) == {6: 0}
+    assert match_truth({5: fragment}, truth) == {5: 0}
 
 
 def test_auto_body_is_a_box_for_a_noisy_box_and_a_hull_for_a_cylinder():

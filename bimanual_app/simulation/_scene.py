@@ -109,7 +109,9 @@ def match_truth(estimated: dict[int, BodyShape], truth: dict[int, BodyShape], ma
     estimated body that lie inside the true one grown by ``margin`` m. A body fitted to the visible part
     of a large object has its centre far from the true centre but lies inside it, so volume decides, not
     centres. Pairs with a share of at least ``min_overlap``, or centres within ``max_dist`` m, are
-    matched, largest share first (then nearest centres); the rest are left out (no real object there).
+    matched, the most volume in common first (the share times the estimated body's volume: of two
+    estimates of one true object, the one that fills more of it, not a fragment wholly inside it; then
+    nearest centres); the rest are left out (no real object there).
     """
     pairs = []
     for ke, e in estimated.items():
@@ -118,7 +120,7 @@ def match_truth(estimated: dict[int, BodyShape], truth: dict[int, BodyShape], ma
             share = float(t.contains(P, margin=margin).mean())
             d = float(np.linalg.norm(e.T_b1_o[:3, 3] - t.T_b1_o[:3, 3]))
             if share >= min_overlap or d <= max_dist:
-                pairs.append((-share, d, ke, kt))
+                pairs.append((-share * float(e.volume), d, ke, kt))
     out, used = {}, set()
     for _, _, ke, kt in sorted(pairs):
         if ke not in out and kt not in used:
