@@ -386,10 +386,16 @@ def _joint(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: 
     if len(push) and params.push_spread > 0:  # the reach budget goes to several places on each face
         push = push.take(spread_order(push.extra["contact"], push.extra["face"], params.push_spread))
     plan.push = push
+    span = _centre_span(geo, others, params)
+    if span is not None:
+        plan.stats["open_end_shift_m"] = float(np.linalg.norm(span))
+        plan.notes.append(f"its end towards ({span[0] / np.linalg.norm(span):+.2f}, {span[1] / np.linalg.norm(span):+.2f}) "
+                          "in b1 was not seen and nothing beyond it was: it may be longer than seen and its centre "
+                          f"up to {100 * np.linalg.norm(span):.0f} cm further that way (views covering it make both sure)")
     lifting = {name: lifting_arm(arm, support.up, params.joint_lift_check) for name, arm in arms.items()}
     rounds = [lifting, arms] if params.joint_lift_check > 0 and all(lifting.values()) else [arms]
     for r, round_arms in enumerate(rounds):
-        pairs = _joint_pairs(plan, support, collider, others, round_arms, check, params, long_side, push)
+        pairs = _joint_pairs(plan, support, collider, others, round_arms, check, params, long_side, push, span)
         plan.stats["joint_lift_checked"] = r == 0 and len(rounds) == 2
         if pairs:
             break
@@ -405,8 +411,9 @@ def _joint(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: 
 
 def _joint_pairs(plan: ObjectPlan, support: Support, collider: GripperCollider, others: SceneOctree,
                  arms: dict[str, Arm], check: TwoArmCheck | None, params: PlanParams, long_side: float,
-                 push) -> list[JointPair]:
-    """One round of ``_joint``: each arm's reachable push contacts and end pinches, and the pairs of them."""
+                 push, span: np.ndarray | None = None) -> list[JointPair]:
+    """One round of ``_joint``: each arm's reachable push contacts and end pinches, and the pairs of them
+    (``span``: where the centre may be, :func:`_centre_span`)."""
     geo = plan.geometry
     pairs: list[JointPair] = []
     # pairs the arms can lift the object from, their grippers clear of the scene, first
@@ -426,7 +433,6 @@ def _joint_pairs(plan: ObjectPlan, support: Support, collider: GripperCollider, 
                                                        prefer=facing)
         plan.stats["push_reach"] = {n: {"reachable": len(a), "tried": a.tried, "why_not": a.reasons}
                                     for n, a in plan.push_reach.items()}
-        span = _centre_span(geo, others, params)
         pp, plan.stats["joint_push"] = joint_pairs(geo, support, plan.push_reach["primary"], plan.push_reach["secondary"],
                                                    collider, check, params.max_joint_pairs, lift=lift, centre_span=span)
         pairs += pp

@@ -491,6 +491,8 @@ def test_a_squeeze_of_a_carton_cut_short_is_balanced_about_where_its_centre_may_
                                    params=params).objects[0]
     seen_y = plans[0.0].geometry.centre[1]
     assert 0.04 < seen_y < 0.07
+    # the user is told which end was not seen (the grasp stage's problems list it when no pair is found)
+    assert any("-1.00) in b1 was not seen" in n for n in plans[0.25].notes), plans[0.25].notes
     assert plans[0.25].stats["joint_push"]["balanced"] > plans[0.0].stats["joint_push"]["balanced"]
     for shift, op in plans.items():
         lowest = seen_y - shift * plans[0.0].geometry.extent[0]  # the farthest the centre may be towards -y
