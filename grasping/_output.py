@@ -45,7 +45,7 @@ def _object_dict(op: ObjectPlan, T_b1_b2: np.ndarray | None, arms_checked: bool)
     if geo is not None:
         d.update({"n_points": geo.n_points, "centre_b1": geo.centre, "T_b1_box": geo.T_b1_box, "extent": geo.extent,
                   "mass_estimate": round(op.mass_estimate, 3),
-                  "shape": {"kind": op.shape, "fit": round(op.shape_fit, 3)}})
+                  "shape": {"kind": op.shape, "fit": round(op.shape_fit, 3), "open_ends": len(op.open_ends)}})
     grasps = []
     rank_of: dict[int, int] = {}
     gs = op.grasps

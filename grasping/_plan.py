@@ -181,6 +181,7 @@ class ObjectPlan:
     free_grasps: GraspSet | None = None
     unseen: np.ndarray | None = None
     carved: np.ndarray | None = None
+    open_ends: list = field(default_factory=list)  # outward normals (3,) of faces it may go on past (_push.open_ends)
     shape: str = "free-form"
     shape_fit: float = 0.0
     mass_estimate: float = 0.0
@@ -249,6 +250,7 @@ def plan_object(k: int, cloud: SceneCloud, support: Support, gripper: GripperMod
     near = np.linalg.norm(others_pts - geo.centre, axis=1) < 0.5 * float(np.linalg.norm(geo.extent)) + 0.3
     others_pts, others_lab = others_pts[near], cloud.labels[~mask][near]
     others = SceneOctree(others_pts, params.octree_resolution)
+    plan.open_ends = open_ends(geo, others, params.push)  # seen only in part: its box may be cut short
     plan.unseen, plan.carved = np.zeros((0, 3)), np.zeros((0, 3))
     obs = geo.observed if geo.observed is not None else np.ones(len(geo.points), bool)  # the seen points
     if params.carve_radius > 0 and cloud.views is not None and not too_wide:
@@ -386,7 +388,7 @@ def _joint(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: 
     if len(push) and params.push_spread > 0:  # the reach budget goes to several places on each face
         push = push.take(spread_order(push.extra["contact"], push.extra["face"], params.push_spread))
     plan.push = push
-    span = _centre_span(geo, others, params)
+    span = _centre_span(geo, plan.open_ends, params)
     if span is not None:
         plan.stats["open_end_shift_m"] = float(np.linalg.norm(span))
         plan.notes.append(f"its end towards ({span[0] / np.linalg.norm(span):+.2f}, {span[1] / np.linalg.norm(span):+.2f}) "
@@ -452,11 +454,10 @@ def _joint_pairs(plan: ObjectPlan, support: Support, collider: GripperCollider, 
     return pairs
 
 
-def _centre_span(geo, others: SceneOctree, params: PlanParams) -> np.ndarray | None:
-    """(3,) how far the object's centre may lie past the centre of its seen box, towards its open ends (faces no
-    camera saw, with nothing seen beyond: :func:`_push.open_ends`), or None when it has none: up to
-    ``params.open_end_shift`` of its seen length along each (an end open both ways cancels)."""
-    ends = open_ends(geo, others, params.push)
+def _centre_span(geo, ends: list, params: PlanParams) -> np.ndarray | None:
+    """(3,) how far the object's centre may lie past the centre of its seen box, towards its open ``ends`` (the
+    outward normals of faces no camera saw, with nothing seen beyond: :func:`_push.open_ends`), or None when it
+    has none: up to ``params.open_end_shift`` of its seen length along each (an end open both ways cancels)."""
     if not ends or params.open_end_shift <= 0:
         return None
     span = sum(params.open_end_shift * float(geo.extent[np.argmax(np.abs(geo.T_b1_box[:3, :2].T @ n))]) * n for n in ends)

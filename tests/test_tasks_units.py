@@ -100,6 +100,35 @@ def test_handover_candidates_of_determined_shapes_go_before_free_form_ones():
     g["objects"][2]["shape"] = {"kind": "free-form", "fit": 0.5}
     assert [c.object_id for c in handover_candidates(g, "grasps.json")] == [1, 2, 3, 2]
 
+
+def test_handover_candidates_of_boxes_seen_whole_go_before_one_cut_short_by_the_views():
+    """A box whose far end no camera saw (grasps.json ``shape.open_ends``: a sliver of a larger box, seen where
+    the views ended) goes with the free-form objects, after a lower-scoring box seen whole, and the reason says
+    why; without ``open_ends`` (an older grasps.json) it counts as seen whole."""
+    def ho(x, score):
+        return {"T_move": np.eye(4).tolist(), "score": score,
+                "giver": {"pick": _grasp(x), "transfer": {"T_b1_g": _grasp(x + 0.1)["T_b1_g"]}, "contact_width": 0.04},
+                "receiver": _grasp(x + 0.2)}
+
+    g = {"objects": [{"id": 4, "shape": {"kind": "box", "fit": 1.0, "open_ends": 1}, "handover": ho(0.30, 0.61)},
+                     {"id": 3, "shape": {"kind": "box", "fit": 0.99, "open_ends": 0}, "handover": ho(0.25, 0.46)},
+                     {"id": 2, "shape": {"kind": "free-form", "fit": 0.57}, "handover": ho(0.2, 0.37)}]}
+    cands = handover_candidates(g, "grasps.json")
+    assert [c.object_id for c in cands] == [3, 4, 2]
+    mine, why = choose(cands, None, "handover", "grasps.json", [2, 3, 4])
+    assert [c.object_id for c in mine] == [3]
+    assert "object 4 scores higher (0.61) but was not seen whole" in why
+    del g["objects"][0]["shape"]["open_ends"]
+    assert [c.object_id for c in handover_candidates(g, "grasps.json")] == [4, 3, 2]
+    # a cylinder's fitted circle gives all of it: an end of its box unseen leaves it determined
+    g["objects"][0]["shape"] = {"kind": "cylinder", "fit": 1.0, "open_ends": 1}
+    assert [c.object_id for c in handover_candidates(g, "grasps.json")] == [4, 3, 2]
+    # when every candidate is undetermined, the reason does not claim one is determined
+    for o in g["objects"]:
+        o["shape"] = {"kind": "free-form", "fit": 0.5}
+    _, why = choose(handover_candidates(g, "grasps.json"), None, "handover", "grasps.json", [2, 3, 4])
+    assert "determines" not in why
+
 def test_robot_points_around_the_bases_are_not_obstacles():
     bases = np.array([[0.0, 0.0, 0.0], [0.6, 0.0, 0.0]])
     pts = np.array([[0.05, 0.02, 0.15],   # the primary arm seen by a camera

@@ -160,13 +160,22 @@ def shape_kind(o: dict) -> str:
     return str(shape.get("kind", "unknown")) if isinstance(shape, dict) else "unknown"
 
 
+def open_end_count(o: dict) -> int:
+    """A grasps.json object's ``shape.open_ends``: how many faces of its box no camera saw, with nothing seen beyond
+    them (the object may go on past them: seen only in part); 0 for a grasps.json without it."""
+    shape = o.get("shape")
+    n = shape.get("open_ends", 0) if isinstance(shape, dict) else 0
+    return int(n) if isinstance(n, (int, float)) else 0
+
+
 def handover_candidates(grasps: dict, path: str) -> list[HandoverChoice]:
     """Every hand-over in grasps.json (each object's ``handover`` and its ``handover_alternatives``): those of
-    objects whose shape the cloud determines (a box or a cylinder, grasps.json ``shape``) first, then the
-    free-form ones; best score first within each. A free-form object seen from some sides only (a mug without
-    its handle, a bunny's far side) hides what meets the receiver's fingers, so such a hand-over can pass
-    the preview on the reconstruction and fail in reality where a box or a cylinder would not
-    (docs/tasks.md)."""
+    objects whose shape the cloud determines (a cylinder, or a box seen whole: grasps.json ``shape``) first, then
+    the others (free-form, or a box with an open end: ``shape.open_ends``); best score first within each. A free-form
+    object seen from some sides only (a mug without its handle, a bunny's far side) hides what meets the
+    receiver's fingers, and an object whose box ends where the views ended may be several times the body
+    planned with, so such a hand-over can pass the preview on the reconstruction and fail in reality where a
+    box or a cylinder seen whole would not (docs/tasks.md)."""
     out = []
     pre = float(grasps.get("pregrasp_distance") or 0.08)
     for o in _objects(grasps):
@@ -180,9 +189,12 @@ def handover_candidates(grasps: dict, path: str) -> list[HandoverChoice]:
                 c.info["source"] = where  # which grasps.json entry (the report names an alternative used)
                 c.info["shape"] = shape_kind(o)
                 c.info["free_form"] = c.info["shape"] == "free-form"
+                c.info["open_ends"] = open_end_count(o)
+                # a box ends at its faces, seen or not; a cylinder's fitted circle gives all of it
+                c.info["undetermined"] = c.info["free_form"] or (c.info["shape"] == "box" and c.info["open_ends"] > 0)
                 out.append(c)
     # the primary gives by preference (grasps.json offers the secondary's only where the primary gives none)
-    out.sort(key=lambda c: (c.info["free_form"], c.giver != "primary", -c.score))
+    out.sort(key=lambda c: (c.info["undetermined"], c.giver != "primary", -c.score))
     return out
 
 
@@ -241,11 +253,14 @@ def choose(cands: list, object_id: int | None, task: str, path: str, known_ids: 
     others = sorted({c.object_id for c in cands} - {best})
     what = "two-arm grasp pair" if task == "joint-grasp" else "hand-over"
     top = max(cands, key=lambda c: c.score)
-    if task == "handover" and top.object_id != best and top.info.get("free_form"):
-        # the best score belongs to a free-form object, passed over for one whose shape is determined
+    if task == "handover" and top.object_id != best and top.info.get("undetermined") \
+            and not cands[0].info.get("undetermined"):
+        # the best score belongs to an object whose shape the cloud does not determine, passed over
+        why = ("is free-form: what no camera saw of it may meet the fingers" if top.info.get("free_form") else
+               "was not seen whole (an end of it where the views ended): it may be larger than planned with")
         reason = (f"object {best} has the best-scoring {what} among the objects whose shape the cloud determines "
                   f"(a {cands[0].info.get('shape', 'primitive')}; score {cands[0].score:.2f}); object {top.object_id} "
-                  f"scores higher ({top.score:.2f}) but is free-form: what no camera saw of it may meet the fingers"
+                  f"scores higher ({top.score:.2f}) but {why}"
                   + (f"; other candidates: {', '.join(map(str, others))}" if others else ""))
         return mine, reason
     reason = (f"object {best} has the best-scoring {what} (score {cands[0].score:.2f}"
