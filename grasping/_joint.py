@@ -234,7 +234,8 @@ def _ranked_pairs(geo: ObjectGeometry, up: np.ndarray, primary: ArmGrasps, secon
             sep = float(np.linalg.norm(d))
             if sep < 1e-6:
                 continue
-            mid = _horiz(0.5 * (c1[i] + c2[j]) - _nearest_centre(geo.centre, span, 0.5 * (c1[i] + c2[j])), up)
+            m = 0.5 * (c1[i] + c2[j])
+            mid = _horiz(m - _nearest_centre(geo.centre, span, m), up)
             imb = float(np.linalg.norm(mid)) / (0.5 * sep)
             terms = (_push_terms(primary, secondary, i, j, c1, c2, up, d, sep, mid, max_height_gap) if kind == "push"
                      else _lift_terms(geo, c1[i], c2[j], sep, imb, min_spread))

@@ -390,10 +390,11 @@ def _joint(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: 
     plan.push = push
     span = _centre_span(geo, plan.open_ends, params)
     if span is not None:
-        plan.stats["open_end_shift_m"] = float(np.linalg.norm(span))
-        plan.notes.append(f"its end towards ({span[0] / np.linalg.norm(span):+.2f}, {span[1] / np.linalg.norm(span):+.2f}) "
+        shift = float(np.linalg.norm(span))
+        plan.stats["open_end_shift_m"] = shift
+        plan.notes.append(f"its end towards ({span[0] / shift:+.2f}, {span[1] / shift:+.2f}) "
                           "in b1 was not seen and nothing beyond it was: it may be longer than seen and its centre "
-                          f"up to {100 * np.linalg.norm(span):.0f} cm further that way (views covering it make both sure)")
+                          f"up to {100 * shift:.0f} cm further that way (views covering it make both sure)")
     lifting = {name: lifting_arm(arm, support.up, params.joint_lift_check) for name, arm in arms.items()}
     rounds = [lifting, arms] if params.joint_lift_check > 0 and all(lifting.values()) else [arms]
     for r, round_arms in enumerate(rounds):

@@ -188,18 +188,25 @@ def _open_end(geo: ObjectGeometry, others: SceneOctree, axis: int, sign: float, 
     return not _seen_beyond(geo, others, n, t, 0.5 * geo.extent[axis], geo.extent[1 - axis], params)
 
 
+def _near_face(geo: ObjectGeometry, axis: int, sign: float, params: PushParams) -> np.ndarray | None:
+    """(N,) bool: the object's points near its box face on ``axis`` at ``sign`` (within 2 cm inside it, across
+    its width); None when there are too few for a face the cameras saw (``2 * params.min_pad_points``)."""
+    n = sign * geo.T_b1_box[:3, axis]
+    rel = geo.points - geo.centre
+    near = (rel @ n > 0.5 * geo.extent[axis] - 0.02) & (np.abs(rel @ np.cross(geo.T_b1_box[:3, 2], n))
+                                                       < 0.5 * geo.extent[1 - axis])
+    return near if near.sum() >= 2 * params.min_pad_points else None
+
+
 def open_ends(geo: ObjectGeometry, others: SceneOctree, params: PushParams = PushParams()) -> list[np.ndarray]:
     """The outward normals (3,) of the object's box faces it may go on past (:func:`_open_end`: a carton whose
     far end no camera saw, its box cut short where the views stopped)."""
     out = []
-    rel = geo.points - geo.centre
     for axis in (0, 1):
         for sign in (1.0, -1.0):
-            n = sign * geo.T_b1_box[:3, axis]
-            near = (rel @ n > 0.5 * geo.extent[axis] - 0.02) & (np.abs(rel @ np.cross(geo.T_b1_box[:3, 2], n))
-                                                               < 0.5 * geo.extent[1 - axis])
-            if near.sum() >= 2 * params.min_pad_points and _open_end(geo, others, axis, sign, params, near):
-                out.append(n)
+            near = _near_face(geo, axis, sign, params)
+            if near is not None and _open_end(geo, others, axis, sign, params, near):
+                out.append(sign * geo.T_b1_box[:3, axis])
     return out
 
 
@@ -210,11 +217,10 @@ def _face(geo: ObjectGeometry, others: SceneOctree, axis: int, sign: float, para
     P, N, up, ext = geo.points, geo.normals, geo.T_b1_box[:3, 2], geo.extent
     n = sign * geo.T_b1_box[:3, axis]  # outward face normal
     t = np.cross(up, n)
-    half = 0.5 * ext[axis]
     rel = P - geo.centre
     along, lat, hgt = rel @ n, rel @ t, rel @ up
-    near_face = (along > half - 0.02) & (np.abs(lat) < 0.5 * ext[1 - axis])
-    if near_face.sum() < 2 * params.min_pad_points:
+    near_face = _near_face(geo, axis, sign, params)
+    if near_face is None:
         return None  # a face the cameras did not see: no blind pushes
     st["faces_seen"] += 1
     if _open_end(geo, others, axis, sign, params, near_face):
