@@ -23,7 +23,12 @@ its own; smaller remains stay (a wall strip, noise). Four more tests keep a cart
 
 A region is a carton when its largest flat top plateau (``_tops._plateaus``) is at least ``CARTON_WIDTH``
 wide and fills its minimum-area rectangle (OpenCV) to ``FILL``: a disc fills pi/4 of its square, a duck's or
-a bunny's back is not flat.
+a bunny's back is not flat. A carton whose top the cameras saw only in part (a corner hidden behind a
+neighbour) fills less, and is still told from a disc by a corner of its own: two adjacent sides of the
+rectangle each lined with plateau voxels over ``EDGE_COVER`` of their length (:func:`_seen_corner`: within
+``EDGE_BAND`` of the side's own edge, the 99th percentile of the voxels across it, so that a few noisy voxels
+past the edge do not move it). A disc 8 cm or more across lines each side of its square over three quarters
+of it at most (a chord 1.3 cm deep); a carton's seen side is lined nearly all along.
 
 A can whose top is level with the carton's (within the plateaus' ``STEP``) is part of the carton's plateau,
 and its disc then stretches the plateau's rectangle over the can. The rectangle is therefore the carton's
@@ -58,6 +63,8 @@ WALL_SHARE = 0.7  # ... and a piece is the carton's own wall when this share of 
 NARROW = 0.5  # an end slab of the top plateau occupied over less than this share of its median width is no carton's
 SLAB = 0.005  # m: the slabs' thickness along the axis (one voxel)
 SIDE_SHARE = 0.25  # a piece holding a cut end is a neighbour only with this share of side voxels (its own side)
+EDGE_BAND = 0.01  # m: plateau voxels this near a side's edge line that side (two voxels) ...
+EDGE_COVER = 0.9  # ... and two adjacent sides lined over this share of their length are a seen corner
 
 
 class _Top(NamedTuple):
@@ -108,6 +115,21 @@ def _core_rectangle(xy: np.ndarray) -> tuple[tuple, np.ndarray]:
     return cv2.minAreaRect(xy[~cut].astype(np.float32)), cut
 
 
+def _seen_corner(local: np.ndarray, half: np.ndarray) -> bool:
+    """Whether two adjacent sides of a rectangle (half sizes ``half`` (2,)) are each lined with the points
+    ``local`` (P, 2) (in the rectangle's axes, from its centre) over ``EDGE_COVER`` of their length (module
+    docstring)."""
+    lined = {}
+    for ax in (0, 1):
+        n = max(1, int(np.ceil(2 * half[1 - ax] / SLAB)))
+        for sign in (1.0, -1.0):
+            across = sign * local[:, ax]
+            on = across >= np.percentile(across, 99) - EDGE_BAND
+            k = np.clip(((local[on, 1 - ax] + half[1 - ax]) / SLAB).astype(int), 0, n - 1)
+            lined[ax, sign] = len(np.unique(k)) / n >= EDGE_COVER
+    return any(lined[0, s0] and lined[1, s1] for s0 in (1.0, -1.0) for s1 in (1.0, -1.0))
+
+
 def _top_rectangle(idx: np.ndarray, xyz: np.ndarray, normals: np.ndarray, edges: np.ndarray) -> _Top | None:
     """The top of a carton region (voxel indices ``idx``), or None when the region is not a carton."""
     import cv2
@@ -118,10 +140,13 @@ def _top_rectangle(idx: np.ndarray, xyz: np.ndarray, normals: np.ndarray, edges:
     top = max(tops, key=len)
     ((cx, cy), (w, h), angle), cut = _core_rectangle(xyz[top, :2])
     xy = xyz[top[~cut], :2].astype(np.float32)
-    if min(w, h) < CARTON_WIDTH or cv2.contourArea(cv2.convexHull(xy)) < FILL * w * h:
+    if min(w, h) < CARTON_WIDTH:
         return None
     a = np.deg2rad(angle)
     R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    if (cv2.contourArea(cv2.convexHull(xy)) < FILL * w * h
+            and not _seen_corner((xy - np.array([cx, cy])) @ R, np.array([w, h]) / 2)):
+        return None
     return _Top(np.array([cx, cy]), R, np.array([w, h]) / 2, float(np.median(xyz[top, 2])), top[~cut], top[cut])
 
 

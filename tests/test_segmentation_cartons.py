@@ -119,3 +119,34 @@ def test_a_cartons_top_seen_narrower_at_one_end_keeps_that_end():
     hidden |= (xyz[:, 0] > 0.07) & (xyz[:, 2] < 0.099)  # and the walls under that end
     (out, n_split), _ = _split((xyz[~hidden], normals[~hidden]))
     assert n_split == 0 and np.all(out == 0)
+
+
+def test_a_carton_with_a_corner_of_its_top_unseen_still_sheds_a_level_can():
+    """A corner of the carton's top hidden (behind a neighbour): its plateau fills under ``FILL`` of its rectangle,
+    but two adjacent sides of it are seen whole (a corner of its own, which a disc has not): still a carton, and a
+    can level with it against its side is split off."""
+    from segmentation._cartons import FILL
+
+    xyz, normals = _carton()
+    hidden = (xyz[:, 2] > 0.099) & (xyz[:, 0] - 0.03 > 0.0) & (xyz[:, 1] + 0.0 < 0.0) \
+        & ((xyz[:, 0] - 0.03) / 0.12 - (xyz[:, 1] - 0.0) / 0.09 > 0.6)  # a triangle off the (+x, -y) corner
+    top = (xyz[:, 2] > 0.099) & ~hidden
+    assert top.sum() / ((xyz[:, 2] > 0.099).sum()) < FILL  # the old test alone called it no carton
+    can = _cylinder((-0.08, 0.09 + 0.03), r=0.03, h=0.10)  # against the +y side, its top level with the carton's
+    keep = can[0][:, 1] > 0.09 + 0.002
+    (out, n_split), (n_carton, _) = _split((xyz[~hidden], normals[~hidden]), (can[0][keep], can[1][keep]))
+    assert n_split == 1
+    assert np.mean(out[:n_carton] == 0) > 0.98 and np.mean(out[n_carton:] != 0) > 0.6  # its side against the carton stays
+
+
+def test_a_flat_disc_is_no_carton_even_with_a_corner_test():
+    """A flat-topped disc 9 cm across (wider than ``CARTON_WIDTH``) lines each side of its square over less than
+    ``EDGE_COVER``: no carton, so a cylinder beside it in its region is left where it is."""
+    from segmentation._cartons import _seen_corner
+
+    g = np.arange(-0.045, 0.045 + 1e-9, STEP)
+    X, Y = np.meshgrid(g, g)
+    disc = np.c_[X.ravel(), Y.ravel()][X.ravel() ** 2 + Y.ravel() ** 2 <= 0.045 ** 2]
+    assert not _seen_corner(disc, np.array([0.045, 0.045]))
+    (out, n_split), _ = _split(_cylinder((0.0, 0.0), r=0.045, h=0.1), _cylinder((0.0, 0.075), r=0.03, h=0.14))
+    assert n_split == 0 and np.all(out == 0)
