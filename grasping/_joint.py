@@ -179,7 +179,9 @@ def _push_terms(primary: ArmGrasps, secondary: ArmGrasps, i: int, j: int, c1: np
     be: each is turned from its own face's normal (a swivel, or aimed away from its arm's base, ``_push``),
     and two arms on either side of an object off the line between their bases reach it turned opposite
     ways. Pairs whose approaches are not opposed come after all those whose are (tier 1): they are what the
-    arms reach where nothing else is, not a better squeeze."""
+    arms reach where nothing else is, not a better squeeze. Pairs with a contact that would lie on the top edge
+    at the task's squeeze depth (``extra["clears_top"]`` False, ``_push.PushParams.squeeze_margin``) come after
+    all those without (tiers 2, 3)."""
     f1, f2 = primary.grasps.extra["face"][i], secondary.grasps.extra["face"][j]
     if f1[0] != f2[0] or f1[1] != -f2[1]:
         return None  # not opposite faces
@@ -192,6 +194,9 @@ def _push_terms(primary: ArmGrasps, secondary: ArmGrasps, i: int, j: int, c1: np
         return None  # the two presses are not on one line: they turn the object instead of holding it
     zh1, zh2 = _horiz(primary.grasps.T_b1_g[i, :3, 2], up), _horiz(secondary.grasps.T_b1_g[j, :3, 2], up)
     tier = int(zh1 @ zh2 > -0.9 * np.linalg.norm(zh1) * np.linalg.norm(zh2))
+    clears = primary.grasps.extra.get("clears_top"), secondary.grasps.extra.get("clears_top")
+    if clears[0] is not None and clears[1] is not None and not (clears[0][i] and clears[1][j]):
+        tier += 2  # pressed as deep as the task squeezes, a gripper would lie on the top edge (_push.PushParams)
     # for a squeeze the lateral offset of the line from the centre matters, not where along it
     dn = d / sep
     imb = float(np.linalg.norm(mid - (mid @ dn) * dn)) / (0.5 * sep)

@@ -88,6 +88,11 @@ class PushParams:
         1.5 cm under the top edge crosses the face plane higher up, and pressed that deep it lay on the top
         edge: in the task bench's ground-truth preview (seed 11) it rode onto the top and the carton slipped
         out of both grippers, while the preview on the slightly shorter estimate held it.
+    squeeze_margin: the task squeezes this much deeper than ``press`` (``bimanual_app.tasks._planners.
+        PUSH_PRESS_MARGIN``). Contacts whose gripper keeps ``top_margin`` from the top pressed that much deeper too
+        (``extra["clears_top"]``) are paired first (``grasping._joint``): a tilted finger pressing just under the
+        top edge lies on it once the real face is a few millimetres further out than the estimate, and the
+        carton slips out of both grippers where the preview on the estimate held it.
     """
 
     rolls: tuple[float, ...] = (0.0, np.pi / 2, np.pi / 4, -np.pi / 4)
@@ -115,6 +120,7 @@ class PushParams:
     beyond_min_points: int = 50
     face_shortfall: float = 0.005
     top_margin: float = 0.0
+    squeeze_margin: float = 0.006
 
 
 def _cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -380,7 +386,7 @@ def _face_rows(geo: ObjectGeometry, support: Support, face: _Face, tips: list[np
 def _contact_free(collider: GripperCollider, contact_map: SceneOctree, tops: dict, rows: list[tuple],
                   T: np.ndarray, nrm: np.ndarray, wv: np.ndarray, params: PushParams,
                   st: dict) -> tuple[np.ndarray, np.ndarray]:
-    """``(at_contact, under_top)`` (n,) bool: the task's own check of the contact and the squeeze.
+    """(n,) bool arrays: the task's own check of the contact and the squeeze.
 
     The task's approach comes in along the way in right up to the contact (not held off), then its squeeze
     presses ``press`` past the face along the inward normal; it checks them against the scene without what
@@ -394,16 +400,22 @@ def _contact_free(collider: GripperCollider, contact_map: SceneOctree, tops: dic
     at_contact = ~collider.collides(contact_map, T, wv, swept=False, margin=params.contact_margin)
     at_contact[at_contact] = ~collider.collides(contact_map, T_in[at_contact], wv[at_contact], swept=False,
                                                 margin=params.contact_margin)
-    T_deep = T.copy()
-    T_deep[:, :3, 3] -= (params.press + params.face_shortfall) * nrm
     faces = [(r[1], r[2]) for r in rows]
-    under_top = np.ones(len(T), dtype=bool)
-    for key, tree in tops.items():
-        idx = np.array([i for i, f in enumerate(faces) if f == key and at_contact[i]], dtype=int)
-        if tree is not None and len(idx):
-            under_top[idx] = ~collider.collides(tree, T_deep[idx], wv[idx], swept=False, margin=params.top_margin)
+
+    def clear_of_top(ok: np.ndarray, depth: float) -> np.ndarray:
+        T_deep = T.copy()
+        T_deep[:, :3, 3] -= depth * nrm
+        out = np.ones(len(T), dtype=bool)
+        for key, tree in tops.items():
+            idx = np.array([i for i, f in enumerate(faces) if f == key and ok[i]], dtype=int)
+            if tree is not None and len(idx):
+                out[idx] = ~collider.collides(tree, T_deep[idx], wv[idx], swept=False, margin=params.top_margin)
+        return out
+
+    under_top = clear_of_top(at_contact, params.press + params.face_shortfall)
     st["on_top_edge"] = int((at_contact & ~under_top).sum())
-    return at_contact & under_top, under_top
+    clears = clear_of_top(at_contact & under_top, params.press + params.squeeze_margin + params.face_shortfall)
+    return at_contact & under_top, under_top, clears
 
 
 def _ways_in(collider: GripperCollider, own: SceneOctree, others: SceneOctree, contact_map: SceneOctree,
@@ -435,7 +447,7 @@ def _ways_in(collider: GripperCollider, own: SceneOctree, others: SceneOctree, c
 
 def _scored(geo: ObjectGeometry, collider: GripperCollider, others: SceneOctree, rows: list[tuple], T: np.ndarray,
             T_off: np.ndarray, nrm: np.ndarray, wv: np.ndarray, retreats: np.ndarray, cone_cos: float,
-            params: PushParams) -> GraspSet:
+            params: PushParams, clears_top: np.ndarray) -> GraspSet:
     """The kept candidates as a push :class:`GraspSet` with their score terms, best first."""
     from ._score import CLEARANCE_LEVELS, WEIGHTS
 
@@ -458,8 +470,10 @@ def _scored(geo: ObjectGeometry, collider: GripperCollider, others: SceneOctree,
                   kind="push", extra={"face": np.array([(r[1], r[2]) for r in rows]),
                                       "lateral": lateral, "squeeze": -nrm,
                                       "contact": np.array([r[9] for r in rows]), "retreats": retreats,
+                                      "clears_top": np.asarray(clears_top, dtype=bool),
                                       "hold_off": params.standoff * nrm})
-    return gs.take(np.argsort(-score))
+    # those clear of the top at the task's squeeze depth first (their reach is checked first: ``PushParams``)
+    return gs.take(np.lexsort((-score, ~gs.extra["clears_top"])))
 
 
 def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, collider: GripperCollider,
@@ -506,7 +520,7 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
     # use any of them
     retreats = np.stack([nrm, -T[:, :3, 2], np.broadcast_to(up, nrm.shape)], axis=1)  # (n, 3, 3)
     contact_map = _without_near(others, geo.points, params.cut_radius)
-    at_contact, under_top = _contact_free(collider, contact_map, tops, rows, T, nrm, wv, params, st)
+    at_contact, under_top, clears = _contact_free(collider, contact_map, tops, rows, T, nrm, wv, params, st)
     path_ok, hit_obj = _ways_in(collider, SceneOctree(geo.points, 0.002), others, contact_map, T, T_off, wv,
                                 retreats, at_contact, params)
     free = path_ok.any(axis=1)
@@ -517,5 +531,6 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
     if len(keep) == 0:
         return GraspSet.empty(geo.id, kind="push")
     retreats = np.where(path_ok[keep][:, :, None], retreats[keep], np.nan)
-    return _scored(geo, collider, others, [rows[i] for i in keep], T[keep], T_off[keep], nrm[keep], wv[keep],
-                   retreats, cone_cos, params)
+    gs = _scored(geo, collider, others, [rows[i] for i in keep], T[keep], T_off[keep], nrm[keep], wv[keep],
+                 retreats, cone_cos, params, clears[keep])
+    return gs

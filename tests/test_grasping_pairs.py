@@ -541,6 +541,57 @@ def test_push_contacts_pressed_past_a_short_face_stay_off_the_top():
     assert not GripperCollider(g).collides(SceneOctree(inner, 0.002), deep, push.width, swept=False).any()
 
 
+def test_push_contacts_clear_of_the_top_at_the_tasks_squeeze_depth_come_first():
+    """The task squeezes ``squeeze_margin`` deeper than ``press`` (its ``PUSH_PRESS_MARGIN``); a steep finger
+    pressing high on a low carton's face then lies on its top edge once the real face is further out. Such
+    contacts are kept (an arm may reach nothing else) but come after those clear of the top that deep
+    (``extra["clears_top"]``), whose reach is checked first; a pair with one of them comes after every pair
+    without (``_joint._push_terms``' tier)."""
+    from bimanual_app.tasks._planners import PUSH_PRESS_MARGIN
+    from grasping import PushParams, SceneOctree
+    from grasping._joint import _push_terms
+
+    pp = PushParams()
+    assert pp.squeeze_margin == PUSH_PRESS_MARGIN  # the depth the task squeezes to
+    box = Obj("box", (0.3, 0.0), (0.16, 0.32, 0.06), 0.0)
+    P, L = make_cloud([box], table_size=(0.8, 0.8))
+    push, _, _ = _push_faces(P, L)
+    clears = push.extra["clears_top"]
+    assert clears.any() and not clears.all()
+    first_not = int(np.argmin(clears))
+    assert clears[:first_not].all() and not clears[first_not:].any()  # the clear ones first, then the rest
+    # those not clear: pressed that deep, some gripper part is on the top face inside the faces
+    deep = push.T_b1_g.copy()
+    deep[:, :3, 3] += (pp.press + pp.squeeze_margin + pp.face_shortfall) * push.extra["squeeze"]
+    top = P[(L == 0) & (P[:, 2] > 0.06 - 1e-6)]
+    inner = top[(np.abs(top[:, 0] - 0.3) < 0.08 - 0.008) & (np.abs(top[:, 1]) < 0.16 - 0.008)]
+    g = load_gripper()
+    hit = GripperCollider(g).collides(SceneOctree(inner, 0.002), deep, push.width, swept=False)
+    assert not hit[clears].any() and hit[~clears].mean() > 0.5
+
+    class _Arm:  # ArmGrasps' fields _push_terms reads
+        def __init__(self, gs):
+            self.grasps = gs
+
+    face = push.extra["face"]
+    i = int(np.flatnonzero(clears & (face[:, 0] == 0) & (face[:, 1] > 0))[0])
+    j_ok = np.flatnonzero(clears & (face[:, 0] == 0) & (face[:, 1] < 0))
+    j_bad = np.flatnonzero(~clears & (face[:, 0] == 0) & (face[:, 1] < 0))
+    assert len(j_ok) and len(j_bad)
+    c = push.extra["contact"]
+    up = np.array([0.0, 0.0, 1.0])
+
+    def tier(j):
+        d = (c[j] - c[i]) * np.array([1.0, 1.0, 0.0])
+        sep = float(np.linalg.norm(d))
+        out = _push_terms(_Arm(push), _Arm(push), i, j, c, c, up, d, sep, 0.5 * (c[i] + c[j]) * 0.0, 1.0)
+        return None if out is None else out[2]
+
+    tiers_ok = {tier(j) for j in j_ok} - {None}
+    tiers_bad = {tier(j) for j in j_bad} - {None}
+    assert tiers_ok and tiers_bad and max(tiers_ok) < 2 <= min(tiers_bad)
+
+
 class _PriorReach:
     """A reach filter that accepts every grasp and predicts reach by the distance from a point (a ``prior``
     without ``prior_min``, so the hand-over ranks with its generic fallback)."""
