@@ -42,10 +42,12 @@ from ._handover import (
 from ._inputs import SceneCloud
 from ._joint import JointPair, PairLift, joint_pairs, spread_order
 from ._objects import (
+    WALLS_MIN_SIDE,
     ObjectGeometry,
     Support,
     check_graspable,
     closed_geometry,
+    complete_walls,
     estimate_support,
     object_geometry,
     primitive_fit,
@@ -263,7 +265,15 @@ def plan_object(k: int, cloud: SceneCloud, support: Support, gripper: GripperMod
     blocked = SceneOctree(np.concatenate([others_pts, plan.unseen]), params.octree_resolution) if len(plan.unseen) \
         else others
     arms = dict(arms or {})
+    n_notes = len(plan.notes)
     _single(plan, support, gripper, collider, blocked, arms, params, too_wide, long_side)
+    if _walls_wanted(plan, support):
+        # a box seen from above has few points on its sides (none to close on: no antipodal pair, or fingers
+        # closing on a handful of edge points): its walls stand under its top's outline down to the table
+        plan.geometry = complete_walls(plan.geometry, support)
+        plan.mode, plan.notes = "single", plan.notes[:n_notes]
+        plan.notes.append("no grasp on its seen points: its box's side walls (unseen) filled in under its top's outline")
+        _single(plan, support, gripper, collider, blocked, arms, params, too_wide, long_side)
     if "primary" in arms and "secondary" in arms:
         robot = getattr(arms["primary"].reach, "robot", None)
         check = TwoArmCheck(robot, gripper, arms["secondary"].T_b1_b) if robot is not None else None
@@ -285,6 +295,17 @@ def plan_object(k: int, cloud: SceneCloud, support: Support, gripper: GripperMod
         + (", hand-over found" if plan.handover is not None else "")
         + f" ({plan.timings['total']:.2f} s)")
     return plan
+
+
+def _walls_wanted(plan: ObjectPlan, support: Support) -> bool:
+    """Whether a single-arm object found no collision-free grasp on its seen points and is a box standing on
+    the table whose side walls were not completed (:func:`complete_walls`: only cartons get them up front, as
+    walls assumed where a small box's faces were not seen change the grasps of the boxes that had good ones)."""
+    geo = plan.geometry
+    if plan.mode != "none" or plan.shape != "box" or plan.grasps is None or len(plan.grasps):
+        return False
+    bottom = float(support.elevation(geo.centre[None])[0]) - 0.5 * float(geo.extent[2])
+    return abs(bottom) < 1e-3 and min(geo.extent[0], geo.extent[1]) < WALLS_MIN_SIDE
 
 
 def _workspace(cloud: SceneCloud, arms: dict[str, Arm] | None, radius: float) -> SceneCloud:

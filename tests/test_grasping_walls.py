@@ -90,3 +90,26 @@ def test_push_pairs_are_found_on_a_carton_seen_only_from_above():
     op = plan.objects[0]
     assert op.mode == "joint" and op.joint, op.notes
     assert op.joint[0].kind == "push"
+
+
+def test_a_small_box_with_no_grasp_on_its_seen_top_gets_its_walls_and_grasps():
+    """A 4.5 cm box seen only from above: no antipodal pair among its top points, so no grasp; it is a box
+    standing on the table, so its side walls are filled in under its top's outline (unseen) and the sampler
+    closes on them. A box whose sides were seen keeps its seen points only (no note, no unseen walls)."""
+    from _grasp_fixtures import accept_all_arms, facing_T_b1_b2
+
+    from grasping import PlanParams, plan_grasps, scene_cloud
+
+    T12 = facing_T_b1_b2(0.6)
+    params = PlanParams(handover=False)
+    small = Obj("box", (0.3, 0.0), (0.045, 0.04, 0.05))
+    P, L = _top_only(*make_cloud([small], table_size=(0.8, 0.8)), top=0.05)
+    op = plan_grasps(scene_cloud(P, L), arms=accept_all_arms(T12), T_b1_b2=T12, params=params).objects[0]
+    assert op.shape == "box" and op.mode == "single" and len(op.grasps) > 0, op.notes
+    assert any("side walls" in n for n in op.notes)
+    assert (~op.geometry.observed).sum() > 50
+    # the grasps close across the box, on the filled-in walls: contact width within a few mm of a side
+    assert np.all(np.min(np.abs(op.grasps.contact_width[:, None] - np.array([0.045, 0.04])), axis=1) < 0.006)
+    P, L = make_cloud([small], table_size=(0.8, 0.8))
+    op = plan_grasps(scene_cloud(P, L), arms=accept_all_arms(T12), T_b1_b2=T12, params=params).objects[0]
+    assert op.mode == "single" and not any("side walls" in n for n in op.notes)
