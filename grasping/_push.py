@@ -385,7 +385,7 @@ def _face_rows(geo: ObjectGeometry, support: Support, face: _Face, tips: list[np
 
 def _contact_free(collider: GripperCollider, contact_map: SceneOctree, tops: dict, rows: list[tuple],
                   T: np.ndarray, nrm: np.ndarray, wv: np.ndarray, params: PushParams,
-                  st: dict) -> tuple[np.ndarray, np.ndarray]:
+                  st: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(n,) bool arrays: the task's own check of the contact and the squeeze.
 
     The task's approach comes in along the way in right up to the contact (not held off), then its squeeze
@@ -488,7 +488,8 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
     the gripper presses in (the face's inward normal, horizontal); ``extra["contact"]`` (n, 3) the point
     midway between the fingertips' contacts with the face; ``extra["retreats"]`` (n, 3, 3) the three ways in
     (unit directions from the contact to the pre-contact: along the face normal, along -z, up), NaN where that
-    way is blocked. ``stats`` (a dict) receives counts of the
+    way is blocked; ``extra["clears_top"]`` (n,) whether the gripper keeps off the top at the task's squeeze
+    depth (``PushParams.squeeze_margin``; those that do come first). ``stats`` (a dict) receives counts of the
     candidates dropped at each check.
     """
     up = geo.T_b1_box[:3, 2]
@@ -531,6 +532,5 @@ def push_contacts(geo: ObjectGeometry, support: Support, gripper: GripperModel, 
     if len(keep) == 0:
         return GraspSet.empty(geo.id, kind="push")
     retreats = np.where(path_ok[keep][:, :, None], retreats[keep], np.nan)
-    gs = _scored(geo, collider, others, [rows[i] for i in keep], T[keep], T_off[keep], nrm[keep], wv[keep],
-                 retreats, cone_cos, params, clears[keep])
-    return gs
+    return _scored(geo, collider, others, [rows[i] for i in keep], T[keep], T_off[keep], nrm[keep], wv[keep],
+                   retreats, cone_cos, params, clears[keep])
