@@ -265,15 +265,7 @@ def plan_object(k: int, cloud: SceneCloud, support: Support, gripper: GripperMod
     blocked = SceneOctree(np.concatenate([others_pts, plan.unseen]), params.octree_resolution) if len(plan.unseen) \
         else others
     arms = dict(arms or {})
-    n_notes = len(plan.notes)
-    _single(plan, support, gripper, collider, blocked, arms, params, too_wide, long_side)
-    if _walls_wanted(plan, support):
-        # a box seen from above has few points on its sides (none to close on: no antipodal pair, or fingers
-        # closing on a handful of edge points): its walls stand under its top's outline down to the table
-        plan.geometry = complete_walls(plan.geometry, support)
-        plan.mode, plan.notes = "single", plan.notes[:n_notes]
-        plan.notes.append("no grasp on its seen points: its box's side walls (unseen) filled in under its top's outline")
-        _single(plan, support, gripper, collider, blocked, arms, params, too_wide, long_side)
+    _single_or_walled(plan, support, gripper, collider, blocked, arms, params, too_wide, long_side)
     if "primary" in arms and "secondary" in arms:
         robot = getattr(arms["primary"].reach, "robot", None)
         check = TwoArmCheck(robot, gripper, arms["secondary"].T_b1_b) if robot is not None else None
@@ -295,6 +287,21 @@ def plan_object(k: int, cloud: SceneCloud, support: Support, gripper: GripperMod
         + (", hand-over found" if plan.handover is not None else "")
         + f" ({plan.timings['total']:.2f} s)")
     return plan
+
+
+def _single_or_walled(plan: ObjectPlan, support: Support, gripper: GripperModel, collider: GripperCollider,
+                      others: SceneOctree, arms: dict[str, Arm], params: PlanParams, too_wide: bool,
+                      long_side: float) -> None:
+    """:func:`_single`, and where it finds no grasp on a box seen from above (:func:`_walls_wanted`), again with
+    the box's side walls filled in: such a box has few points on its sides (no antipodal pair, or fingers closing
+    on a handful of edge points), and its walls stand under its top's outline down to the table."""
+    n_notes = len(plan.notes)
+    _single(plan, support, gripper, collider, others, arms, params, too_wide, long_side)
+    if _walls_wanted(plan, support):
+        plan.geometry = complete_walls(plan.geometry, support)
+        plan.mode, plan.notes = "single", plan.notes[:n_notes]  # the first round's "no grasp" note goes
+        plan.notes.append("no grasp on its seen points: its box's side walls (unseen) filled in under its top's outline")
+        _single(plan, support, gripper, collider, others, arms, params, too_wide, long_side)
 
 
 def _walls_wanted(plan: ObjectPlan, support: Support) -> bool:

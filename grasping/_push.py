@@ -448,7 +448,8 @@ def _ways_in(collider: GripperCollider, own: SceneOctree, others: SceneOctree, c
 def _scored(geo: ObjectGeometry, collider: GripperCollider, others: SceneOctree, rows: list[tuple], T: np.ndarray,
             T_off: np.ndarray, nrm: np.ndarray, wv: np.ndarray, retreats: np.ndarray, cone_cos: float,
             params: PushParams, clears_top: np.ndarray) -> GraspSet:
-    """The kept candidates as a push :class:`GraspSet` with their score terms, best first."""
+    """The kept candidates as a push :class:`GraspSet` with their score terms: those clear of the top at the
+    task's squeeze depth (``clears_top`` (n,)) first, best first within each."""
     from ._score import CLEARANCE_LEVELS, WEIGHTS
 
     clear = collider.clearance(others, T_off, wv, CLEARANCE_LEVELS) / CLEARANCE_LEVELS[-1]
