@@ -133,3 +133,34 @@ def test_the_planner_follows_a_straight_line_on_the_piper_and_names_where_it_lea
     far[:3, 3] = [0.95, 0.0, T[2, 3]]
     with pytest.raises(PlanFailure, match="leaves its reach"):
         motion.ik_path({"primary": line_poses(T, far)}, {"primary": q})
+
+
+def _x_pose_of(x_of_q, y_of_q=lambda q: 0.0 * q):
+    """Forward kinematics of the made-up one-joint arm: (N, 1) joints -> (N, 4, 4) poses at x_of_q, y_of_q."""
+    def fk(Q):
+        q = np.asarray(Q, dtype=np.float64)[:, 0]
+        return np.stack([make_T(np.eye(3), [x_of_q(v), y_of_q(v), 0.0]) for v in q])
+    return fk
+
+
+def test_a_jump_no_split_shrinks_passes_when_the_joint_line_stays_on_the_move():
+    # a wrist within a fraction of a millimetre of its singularity: 2.5 rad over 0.1 mm at x = 1.5 cm, finer
+    # than the finest split; the joint moving straight between the two solutions keeps the gripper on the line
+    x0, dx, turn = 0.015, 1e-4, 2.5
+    solve = _one_joint(lambda x: turn * np.clip((x - x0) / dx, 0.0, 1.0))
+    fk = _x_pose_of(lambda q: x0 + q / turn * dx)
+    Q, fail = follow_poses({"a": solve}, {"a": _x_line(4)}, {"a": np.zeros(1)})
+    assert fail is not None and fail.kind == "branch"  # without the arm's kinematics: refused as before
+    Q, fail = follow_poses({"a": solve}, {"a": _x_line(4)}, {"a": np.zeros(1)}, fk={"a": fk})
+    assert fail is None
+    assert Q["a"][-1, 0] == pytest.approx(turn)
+    assert np.max(np.abs(np.diff(Q["a"][:, 0]))) <= 0.02 + 1e-12  # the jump came back as joint-line samples
+
+
+def test_a_branch_switch_whose_joint_line_leaves_the_move_is_still_refused():
+    # the same jump, but halfway between the two solutions the gripper is 5 cm off the line: another branch
+    x0, dx, turn = 0.015, 1e-4, 2.5
+    solve = _one_joint(lambda x: turn * np.clip((x - x0) / dx, 0.0, 1.0))
+    fk = _x_pose_of(lambda q: x0 + q / turn * dx, lambda q: 0.05 * np.sin(np.pi * q / turn))
+    Q, fail = follow_poses({"a": solve}, {"a": _x_line(4)}, {"a": np.zeros(1)}, fk={"a": fk})
+    assert fail is not None and fail.kind == "branch" and fail.index == 2

@@ -9,6 +9,14 @@ interpolated, slerp): a continuous motion's largest joint step shrinks with the 
 does not. A step is accepted once its jump is within ``MAX_JOINT_JUMP / parts``, or once it has nearly halved
 with the last split (to 0.6 of it) and is within half the limit.
 
+Passing within a fraction of a millimetre of a wrist singularity, joints 4 and 6 turn by up to pi over less
+than the finest split, and no split shrinks that jump; yet the joint-space line between the two solutions
+keeps the gripper on the move (at the singularity only their sum moves the gripper). Given the arms' forward
+kinematics (``fk``), such a step is accepted when every configuration on that joint-space line, sampled
+every ``CONTINUITY_SAMPLE`` rad, puts the gripper within ``CONTINUITY_TOL_M`` of the step's segment and
+``CONTINUITY_TOL_RAD`` of its orientation; the samples become waypoints (the time parametrisation slows the
+fast joints). A switch to another branch sweeps the gripper off the line between the two solutions.
+
 The grasp stage's reach check (``grasping.ArmReach``) keeps a coarser rule of its own, which also stands in
 for the planner's fallbacks around these moves (docs/grasping.md: this rule there was measured and lost
 held-out scenes).
@@ -29,9 +37,14 @@ WAYPOINT_STEP = 0.01  # m between the waypoints of a straight move
 WAYPOINT_TURN = 0.05  # rad between the waypoints of a straight move
 MAX_JOINT_JUMP = 0.35  # rad between consecutive waypoints: more is a branch switch unless splitting shrinks it
 SPLITS = (1, 2, 4, 8)  # parts a step is split in, in turn, while its jump stays over the limit
+CONTINUITY_SAMPLE = 0.02  # rad: joint-space spacing of the samples that check an unsplittable jump
+CONTINUITY_TOL_M = 0.002  # m: ... the gripper stays this close to the step's segment
+CONTINUITY_TOL_RAD = 0.03  # rad: ... and this close to its orientation
 
 # solve(T (4,4), q_seed (J,), n_solutions, max_seeds) -> IKResult (bimanual_app.kinematics.IKResult)
 Solve = Callable[[np.ndarray, np.ndarray, int, int], object]
+# fk(Q (N, J)) -> (N, 4, 4) gripper poses in the frame of that arm's poses
+Forward = Callable[[np.ndarray], np.ndarray]
 
 
 @dataclass
@@ -70,11 +83,14 @@ def line_poses(T0: np.ndarray, T1: np.ndarray, n: int | None = None) -> np.ndarr
 
 
 def follow_poses(solve: dict[str, Solve], poses: dict[str, np.ndarray], q0: dict[str, np.ndarray],
-                 max_jump: float = MAX_JOINT_JUMP) -> tuple[dict[str, np.ndarray], PathFailure | None]:
+                 max_jump: float = MAX_JOINT_JUMP, fk: dict[str, Forward] | None = None
+                 ) -> tuple[dict[str, np.ndarray], PathFailure | None]:
     """Joint waypoints of arms moving through their poses together, on one IK branch each (module docstring).
 
     solve: arm -> IK function (``Solve``); poses: arm -> (K, 4, 4) poses in that solver's frame, the same K for
-    every arm (a split step splits every arm's); q0: arm -> (J,) the configuration at the first pose.
+    every arm (a split step splits every arm's); q0: arm -> (J,) the configuration at the first pose; fk: arm ->
+    forward kinematics (``Forward``), which lets a jump no split shrinks pass when the joint-space line keeps the
+    gripper on the move (module docstring; without it such a jump is a branch switch).
     Returns (arm -> (K', J) joint waypoints, K' >= K, the first q0; None) or, when the move cannot be
     followed, (the waypoints up to the failed step, the ``PathFailure``).
     """
@@ -85,7 +101,7 @@ def follow_poses(solve: dict[str, Solve], poses: dict[str, np.ndarray], q0: dict
     Q = {a: [np.asarray(q0[a], dtype=np.float64)] for a in arms}
     for k in range(1, K):
         sub, fail = _split_step(solve, {a: (poses[a][k - 1], poses[a][k]) for a in arms},
-                                {a: Q[a][-1] for a in arms}, max_jump)
+                                {a: Q[a][-1] for a in arms}, max_jump, fk)
         if fail is not None:
             fail.index = k
             return {a: np.stack(Q[a]) for a in arms}, fail
@@ -94,9 +110,11 @@ def follow_poses(solve: dict[str, Solve], poses: dict[str, np.ndarray], q0: dict
     return {a: np.stack(Q[a]) for a in arms}, None
 
 
-def _split_step(solve: dict[str, Solve], ends: dict, q: dict, max_jump: float) -> tuple[dict, PathFailure | None]:
+def _split_step(solve: dict[str, Solve], ends: dict, q: dict, max_jump: float,
+                fk: dict[str, Forward] | None = None) -> tuple[dict, PathFailure | None]:
     """One step of ``follow_poses``: arm -> (T0, T1) from the configurations ``q`` (arm -> (J,)), split in
-    ``SPLITS`` parts until accepted. Returns (arm -> [sub-step solutions], None) or ({}, the failure)."""
+    ``SPLITS`` parts until accepted, else checked along the joint-space line (``_on_the_line``, with ``fk``).
+    Returns (arm -> [sub-step solutions], None) or ({}, the failure)."""
     prev = np.inf
     for parts in SPLITS:
         sub, jump = {}, 0.0
@@ -117,5 +135,43 @@ def _split_step(solve: dict[str, Solve], ends: dict, q: dict, max_jump: float) -
         if jump <= max_jump / parts or (jump <= 0.6 * prev and jump <= max_jump / 2):
             return sub, None
         prev = jump
+    if fk is not None:
+        joined = _on_the_line(fk, ends, q, sub, max_jump / SPLITS[-1])
+        if joined is not None:
+            return joined, None
     step = max(float(np.linalg.norm(T1[:3, 3] - T0[:3, 3])) for T0, T1 in ends.values()) / SPLITS[-1]
     return {}, PathFailure("branch", 0, jump=jump, step=step)
+
+
+def _on_the_line(fk: dict[str, Forward], ends: dict, q: dict, sub: dict, limit: float) -> dict | None:
+    """The finest split's sub-steps (arm -> [(J,)] after ``q``) with every jump over ``limit`` (rad) replaced by
+    samples of its joint-space line, or None when some sample leaves the sub-step's segment (a branch switch).
+    Every arm gets the same samples (their straight joint lines, for one clock)."""
+    arms = list(sub)
+    n_sub = len(sub[arms[0]])
+    out = {a: [] for a in arms}
+    for i in range(n_sub):
+        qa = {a: (q[a] if i == 0 else sub[a][i - 1]) for a in arms}
+        jump = max(float(np.max(np.abs(sub[a][i] - qa[a]))) for a in arms)
+        n = int(np.ceil(jump / CONTINUITY_SAMPLE)) if jump > limit else 1
+        s = np.linspace(0.0, 1.0, n + 1)[1:, None]
+        for a in arms:
+            Qs = qa[a] + s * (sub[a][i] - qa[a])
+            if n > 1:
+                T0, T1 = ends[a]
+                seg = line_poses(T0, T1, n_sub + 1)[i:i + 2]
+                if not _near_segment(fk[a](Qs), seg[0], seg[1]):
+                    return None
+            out[a].extend(Qs)
+    return out
+
+
+def _near_segment(T: np.ndarray, T0: np.ndarray, T1: np.ndarray) -> bool:
+    """Whether every pose of ``T`` (N, 4, 4) lies within ``CONTINUITY_TOL_M`` of the segment T0 -> T1 (4, 4)
+    and within ``CONTINUITY_TOL_RAD`` of T0's or T1's orientation."""
+    d = T1[:3, 3] - T0[:3, 3]
+    u = np.clip((T[:, :3, 3] - T0[:3, 3]) @ d / max(float(d @ d), 1e-18), 0.0, 1.0)
+    off = np.linalg.norm(T[:, :3, 3] - (T0[:3, 3] + u[:, None] * d), axis=1)
+    turn = [np.arccos(np.clip((np.einsum("nij,ij->n", T[:, :3, :3], R) - 1.0) / 2.0, -1.0, 1.0))
+            for R in (T0[:3, :3], T1[:3, :3])]
+    return bool(off.max() <= CONTINUITY_TOL_M and np.minimum(*turn).max() <= CONTINUITY_TOL_RAD)

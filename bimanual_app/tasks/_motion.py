@@ -294,7 +294,12 @@ class TaskMotion:
                 return self.setup.ik(a, T, q, n_solutions=n_solutions, max_seeds=max_seeds)
             return solve
 
-        Q, fail = follow_poses({a: solver(a) for a in poses}, poses, q0)
+        def forward(a):
+            ik = self.setup.ik_solver(a)
+            T_b1_b = self.setup.T_b1_b(a)
+            return lambda Q: T_b1_b @ ik.robot.fk_link(np.atleast_2d(Q), ik.link)
+
+        Q, fail = follow_poses({a: solver(a) for a in poses}, poses, q0, fk={a: forward(a) for a in poses})
         if fail is None:
             return Q
         if fail.kind == "reach":
