@@ -17,6 +17,13 @@ A part that touches no region at all (the cloud misses the concave junction: a d
 one that reaches the table, at most 1.5 cm above its top and inside its footprint, joins it unless it is an
 object standing on it (rule ``resting_parts``).
 
+Colour keeps apart two regions whose flat junction is a change of print (two objects flush side by side), but
+a printed band also cuts one top in two: a piece that does not reach the table, whose top is level with a
+neighbour's, which meets that neighbour's top along its whole width there, and whose top and the neighbour's
+together fill one box's rectangle or one can's circle, is the rest of that top whatever its colour (rule
+``cut_tops``). A separate object's top seen between others meets a neighbour's at a tangent, which leaves
+notches beside the junction, and one whose sides are seen reaches the table.
+
 A touching neighbour that stands on the table beside N is left alone; a box stacked on N is left alone.
 Tiny regions (fewer than ``min_object_voxels``) join the neighbour with the best affinity when they rise
 above the table band, and are dropped otherwise.
@@ -39,6 +46,14 @@ TIGHT_MARGIN = 0.005
 HULL_MARGIN = 0.01  # "inside N's footprint": within N's x-y convex hull grown by 1 cm (N's walls, noise)
 CORE_RADIUS = 0.01  # N's footprint for that test: its core, without slivers under 2 cm wide (see core_hull) ...
 CORE_MIN_WIDTH = 0.08  # ... for regions at least this wide (cartons); smaller ones keep their plain hull
+CUT_SPAN = 0.9  # a top cut in two: the piece meets the neighbour's top along this share of its width there ...
+CUT_BAND = 0.01  # ... top voxels: within this of the region's top; ...
+CUT_GAP = 0.008  # ... meeting: top voxels of the two within this of each other in x-y (1.5 voxels)
+PLATEAU_COS = 0.9  # ... top voxels facing up: |normal z| at least this (within 26 deg of vertical); and
+TOP_FILL_RECT = 0.9  # ... both tops together fill this share of their minimum-area rectangle (a box's top) ...
+TOP_FILL_DISC = 0.6  # ... or of their enclosing circle (a can's). Two tops met at a tangent fill less: two
+# equal discs 0.5 of their circle (0.79 of their rectangle), a can beside a 5 cm box 0.53 (0.75), a can beside a
+# carton under 0.87 of its rectangle; a whole can's top, ragged in a pipeline cloud, fills 0.66-0.84
 
 
 def _inside_hull(hull_xy: np.ndarray, xy: np.ndarray, margin: float, cell: float = 0.002) -> np.ndarray:
@@ -137,6 +152,58 @@ def is_object_on(G: RegionGraph, S: int, N: int, st: _Stats, params: SegmentPara
     return G.hist is None or G.colour_penalty(S, N) >= 0.5
 
 
+def _top_band(xyz: np.ndarray, normals: np.ndarray, top: float) -> np.ndarray:
+    """(k, 2) x-y of the voxels within ``CUT_BAND`` of ``top`` that face up (a plateau, not a wall's rim)."""
+    keep = (xyz[:, 2] >= top - CUT_BAND) & (np.abs(normals[:, 2]) >= PLATEAU_COS)
+    return xyz[keep, :2]
+
+
+def cut_top(S_xyz: np.ndarray, S_normals: np.ndarray, N_xyz: np.ndarray, N_normals: np.ndarray, s_bottom: float,
+            s_top: float, n_top: float) -> bool:
+    """Whether region S (voxels ``S_xyz`` (m, 3) and normals (m, 3), table frame) is a piece of neighbour N's
+    top cut off by its print (rule ``cut_tops``, module docstring): S does not reach the table, its top is
+    level with N's (within ``STACK_TOL``), the upward-facing top voxels of S within ``CUT_GAP`` of N's
+    (``N_xyz``, ``N_normals`` (n, 3)) span at least ``CUT_SPAN`` of S's top along the line they follow (S is
+    no wider than where it meets N: a cut, not a tangent), and both tops together are one box's or one can's
+    (:func:`one_primitive_top`)."""
+    from scipy.spatial import cKDTree
+
+    if reaches_table(s_bottom, s_top) or abs(s_top - n_top) > STACK_TOL:
+        return False
+    s_xy, n_xy = _top_band(S_xyz, S_normals, s_top), _top_band(N_xyz, N_normals, n_top)
+    if len(s_xy) < 3 or len(n_xy) < 3:
+        return False
+    d, _ = cKDTree(n_xy).query(s_xy, distance_upper_bound=CUT_GAP)
+    meet = s_xy[np.isfinite(d)]
+    if len(meet) < 2:
+        return False
+    axis = np.linalg.svd(meet - meet.mean(0), full_matrices=False)[2][0]
+    if np.ptp(meet @ axis) + CUT_GAP < CUT_SPAN * (np.ptp(s_xy @ axis) + CUT_GAP):
+        return False  # S is wider than where it meets N: a tangent, not a cut
+    return one_primitive_top(np.vstack([s_xy, n_xy]))
+
+
+def one_primitive_top(xy: np.ndarray, cell: float = 0.005) -> bool:
+    """Whether a top's footprint ``xy`` (M, 2) is one box's or one can's: its raster (``cell``, closed, holes
+    filled) fills at least ``TOP_FILL_RECT`` of its minimum-area rectangle or ``TOP_FILL_DISC`` of its minimum
+    enclosing circle (both grown by half a cell: the raster's cells are squares around the points). Two tops
+    that meet at a tangent (a can beside a carton) leave the notches between them empty."""
+    import cv2
+    from scipy import ndimage
+
+    lo = xy.min(0) - 2 * cell
+    ij = np.floor((xy - lo) / cell).astype(int)
+    grid = np.zeros(tuple(ij.max(0)[::-1] + 3), np.uint8)
+    grid[ij[:, 1], ij[:, 0]] = 1
+    grid = cv2.morphologyEx(grid, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))  # a ragged top's missing cells
+    area = float(ndimage.binary_fill_holes(grid).sum()) * cell * cell
+    pts = xy.astype(np.float32)
+    w, h = cv2.minAreaRect(pts)[1]
+    r = cv2.minEnclosingCircle(pts)[1]
+    return (area >= TOP_FILL_RECT * (w + cell) * (h + cell)
+            or area >= TOP_FILL_DISC * np.pi * (r + cell / 2) ** 2)
+
+
 def _groups(G: RegionGraph, patch_of_voxel: np.ndarray) -> dict[int, np.ndarray]:
     lab = np.array([G.find(i) for i in range(len(G.parent))])[patch_of_voxel]
     order = np.argsort(lab, kind="stable")
@@ -168,12 +235,14 @@ def _resting_on(G: RegionGraph, S: int, big: dict, st: _Stats, params: SegmentPa
 
 
 def attach_parts(G: RegionGraph, patch_of_voxel: np.ndarray, xyz: np.ndarray, params: SegmentParams,
-                 max_rounds: int = 200) -> int:
+                 max_rounds: int = 200, normals: np.ndarray | None = None) -> int:
     """Merge tiny regions and dependent parts of ``G`` in place; returns the number of merges.
 
     ``patch_of_voxel`` (V,) maps voxels to patches (the graph's initial nodes); ``xyz`` (V, 3) are the
-    voxels in the table frame (z = height).
+    voxels in the table frame (z = height); ``normals`` (V, 3) their normals (sign free), for the rule
+    ``cut_tops`` (without them it does not run).
     """
+    cuts = normals is not None and "cut_tops" not in params.skip
     merges = 0
     # 1. tiny regions, smallest first, into their best neighbour (one pass; sizes are kept by G)
     groups = _groups(G, patch_of_voxel)
@@ -196,7 +265,13 @@ def attach_parts(G: RegionGraph, patch_of_voxel: np.ndarray, xyz: np.ndarray, pa
             nS = len(big[S])
             cands = []
             for N in G.adj[S]:
-                if N not in big or len(big[N]) <= nS or looks_different(G, S, N):
+                if N not in big or len(big[N]) <= nS:
+                    continue
+                if cuts and cut_top(xyz[big[S]], normals[big[S]], xyz[big[N]], normals[big[N]], st.bottom[S],
+                                    st.top[S], st.top[N]):
+                    cands.append(N)  # a piece of N's top that its print cut off
+                    continue
+                if looks_different(G, S, N):
                     continue
                 if st.bottom[S] >= st.top[N] - STACK_TOL and is_object_on(G, S, N, st, params):
                     continue

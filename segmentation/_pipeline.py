@@ -245,7 +245,7 @@ def _regions(vox, vn, var, edges, mask_vox, table: TablePlane, p: SegmentParams,
     if _debug is not None:  # intermediate results for development and tests
         _debug.update(vox=vox, patches=patches, pairs=pairs, weight=weight, score=score,
                       contracted=G.labels()[patches.of_voxel], graph=G)
-    parts = 0 if "attach_parts" in p.skip else attach_parts(G, patches.of_voxel, vox.xyz, p)
+    parts = 0 if "attach_parts" in p.skip else attach_parts(G, patches.of_voxel, vox.xyz, p, normals=vn)
     region = G.labels()[patches.of_voxel]  # (V,) region per voxel
     if _debug is not None:
         _debug["attached"] = region

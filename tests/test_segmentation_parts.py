@@ -59,3 +59,80 @@ def test_a_part_held_up_across_a_gap_in_the_cloud_joins_the_region_under_it():
     # an object of another colour standing on it stays an object (as a touching one does)
     assert not _attached(body, head, touching=False, colours="different")
     assert not _attached(body, head, touching=False, colours="same", skip=("resting_parts",))  # the rule, left out
+
+
+def _disc(cx, cy, r, z, keep=lambda x, y: True, step=0.004):
+    """Voxels (M, 3) and upward normals of a flat disc's top at height z, where ``keep(x, y)``."""
+    g = np.mgrid[cx - r:cx + r:step, cy - r:cy + r:step].reshape(2, -1).T
+    g = g[(np.hypot(g[:, 0] - cx, g[:, 1] - cy) <= r) & keep(g[:, 0], g[:, 1])]
+    xyz = np.c_[g, np.full(len(g), z)]
+    return xyz, np.tile([0.0, 0.0, 1.0], (len(xyz), 1))
+
+
+def _side(cx, cy, r, z0, z1, keep=lambda x, y: True, step=0.004):
+    """Voxels and outward normals of a cylinder's side from z0 to z1, where ``keep(x, y)``."""
+    a = np.arange(0.0, 2 * np.pi, step / r)
+    a = a[keep(cx + r * np.cos(a), cy + r * np.sin(a))]
+    z = np.arange(z0, z1, step)
+    A, Z = np.meshgrid(a, z)
+    xyz = np.c_[cx + r * np.cos(A.ravel()), cy + r * np.sin(A.ravel()), Z.ravel()]
+    return xyz, np.c_[np.cos(A.ravel()), np.sin(A.ravel()), np.zeros(A.size)]
+
+
+def _cut(body, part, skip=()):
+    """Whether ``attach_parts`` (with normals) merges ``part`` into ``body`` ((xyz, normals) each): two regions
+    of different colours across a flat junction, which colour alone keeps apart."""
+    xyz, nrm = np.vstack([body[0], part[0]]), np.vstack([body[1], part[1]])
+    patch = np.r_[np.zeros(len(body[0]), int), np.ones(len(part[0]), int)]
+    nvox = np.bincount(patch).astype(float)
+    hist = np.zeros((2, 4))
+    hist[0, 0], hist[1, 3] = nvox
+    G = RegionGraph(nvox, hist, None, np.array([[0, 1]]), np.array([8.0]), np.array([1.0]), np.array([1.0]),
+                    SegmentParams())
+    attach_parts(G, patch, xyz, SegmentParams(skip=skip), normals=nrm)
+    return G.find(0) == G.find(1)
+
+
+def _join(*parts):
+    return np.vstack([p[0] for p in parts]), np.vstack([p[1] for p in parts])
+
+
+def test_a_can_top_cut_in_two_by_its_print_is_one_top_a_neighbour_met_at_a_tangent_is_not():
+    """A 6.6 cm can, 10 cm tall, whose side towards a carton no camera saw: a printed band cuts its top in two,
+    and the half over the unseen side (no wall down to the table) floats, level with the other half and meeting
+    it along the cut: it joins (rule ``cut_tops``), whatever its colour. A can top of its own, level with a
+    carton's wall or a box's top and meeting it at a tangent, does not; nor does a half that reaches the table
+    (two flush objects)."""
+    r, h = 0.033, 0.10
+    seen = _join(_disc(0.0, 0.0, r, h, lambda x, y: x <= 0.0), _side(0.0, 0.0, r, 0.0, h, lambda x, y: x <= 0.0))
+    half = _join(_disc(0.0, 0.0, r, h, lambda x, y: x > 0.0), _side(0.0, 0.0, r, h - 0.008, h, lambda x, y: x > 0.0))
+    assert _cut(seen, half)
+    assert not _cut(seen, half, skip=("cut_tops",))  # the rule left out: colour keeps them apart
+    standing = _join(half, _side(0.0, 0.0, r, 0.0, h, lambda x, y: x > 0.0))
+    assert not _cut(seen, standing)  # reaches the table: an object flush with the other
+    # a carton's wall (its top face a region of its own) and a can top floating beside it, tangent
+    wall_y = np.arange(-0.08, 0.08, 0.004)
+    wall_z = np.arange(0.0, h, 0.004)
+    Y, Z = np.meshgrid(wall_y, wall_z)
+    wall = (np.c_[np.full(Y.size, -r - 0.002), Y.ravel(), Z.ravel()], np.tile([1.0, 0.0, 0.0], (Y.size, 1)))
+    can_top = _join(_disc(0.0, 0.0, r, h), _side(0.0, 0.0, r, h - 0.008, h))
+    assert not _cut(wall, can_top)
+    # ... or beside a box's top at its height (the box's sides seen down to the table)
+    box = _grid(-0.099, -r - 0.002, -0.05, 0.05, 0.0, h + 0.001)
+    box_n = np.where(np.abs(box[:, 2] - box[:, 2].max())[:, None] < 0.002, [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
+    assert not _cut((box, box_n), can_top)
+
+
+def test_one_primitive_top_tells_one_top_from_two_met_at_a_tangent():
+    from segmentation._parts import one_primitive_top
+
+    g = np.mgrid[-0.04:0.04:0.005, -0.04:0.04:0.005].reshape(2, -1).T
+    disc = g[np.hypot(g[:, 0], g[:, 1]) <= 0.033]  # a 6.6 cm can's top
+    box = np.mgrid[0:0.05:0.005, 0:0.05:0.005].reshape(2, -1).T  # a 5 cm box's
+    carton = np.mgrid[0:0.3:0.005, 0:0.17:0.005].reshape(2, -1).T
+    assert one_primitive_top(disc) and one_primitive_top(box) and one_primitive_top(carton)
+    assert one_primitive_top(disc[::2])  # a ragged top (every other cell missing) is still one top
+    assert not one_primitive_top(np.vstack([disc, disc + [0.067, 0.0]]))  # two cans side by side
+    assert not one_primitive_top(np.vstack([box, disc + [0.086, 0.025]]))  # a can beside a box
+    assert not one_primitive_top(np.vstack([carton, disc + [0.15, 0.205]]))  # ... beside a carton's long side
+    assert not one_primitive_top(np.vstack([carton, disc + [0.335, 0.085]]))  # ... its short side
