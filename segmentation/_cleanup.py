@@ -6,7 +6,8 @@ junctions alone is cleaned up afterwards by these steps (each module's docstring
 - ``attach_parts`` (``_parts``, on the region graph): tiny regions and parts that cannot stand alone (a
   handle, a mug's inside) join their object; its rule ``bunny_ears`` joins thin parts held up beside an
   object's top, its rule ``resting_parts`` a part that rests on the region under it across a gap in the cloud,
-  its rule ``cut_tops`` a piece of a top that a printed band cut off;
+  its rule ``cut_tops`` a piece of a top that a printed band cut off, its rule ``held_parts`` a part with
+  more voxels than the region on the table that holds it up;
 - ``dissolve_slivers`` (``_parts``): regions narrower than 1.5 cm (valleys between objects) go to a neighbour;
 - ``split_by_tops`` (``_tops``): a region holding two flat tops at different heights is split; its rule
   ``level_tops`` (``_bump``) cuts a top that bulges out of a level neighbour's;
@@ -33,7 +34,7 @@ from ._walls import shed_neighbour_walls
 __all__ = ["CLEANUP_STEPS", "Voxels", "clean_up_regions"]
 
 #: every step and rule ``SegmentParams.skip`` may name, in the order they run
-CLEANUP_STEPS = ("attach_parts", "bunny_ears", "resting_parts", "cut_tops", "dissolve_slivers", "split_by_tops", "level_tops",
+CLEANUP_STEPS = ("attach_parts", "bunny_ears", "resting_parts", "cut_tops", "held_parts", "dissolve_slivers", "split_by_tops", "level_tops",
                  "shed_walls", "carton_neighbours")
 
 SLIVER_WIDTH = 0.015  # m: regions narrower than this in x-y are valleys between objects, not objects

@@ -44,7 +44,8 @@ class SegmentParams:
 
     Clean-up after the contraction:
         skip: names of clean-up steps to leave out (``segmentation.CLEANUP_STEPS``: ``attach_parts``,
-            ``bunny_ears``, ``resting_parts`` and ``cut_tops`` (rules of attach_parts), ``dissolve_slivers``,
+            ``bunny_ears``, ``resting_parts``, ``cut_tops`` and ``held_parts`` (rules of attach_parts),
+            ``dissolve_slivers``,
             ``split_by_tops``, ``level_tops`` (the ``_bump`` rule of split_by_tops), ``shed_walls``,
             ``carton_neighbours``); every step runs by default. For measuring what each step does
             (``bench/segmentation_steps.py``), not for users.

@@ -17,6 +17,10 @@ A part that touches no region at all (the cloud misses the concave junction: a d
 one that reaches the table, at most 1.5 cm above its top and inside its footprint, joins it unless it is an
 object standing on it (rule ``resting_parts``).
 
+A part may have more voxels than the region that holds it up (cameras looking down see a duck's head better
+than its body, a carton's top face better than its walls): a region that does not reach the table may join one
+that does whatever their sizes (rule ``held_parts``); otherwise the smaller region joins the larger.
+
 Colour keeps apart two regions whose flat junction is a change of print (two objects flush side by side), but
 a printed band also cuts one top in two: a piece that does not reach the table, whose top is level with a
 neighbour's, which meets that neighbour's top along its whole width there, and whose top and the neighbour's
@@ -204,6 +208,13 @@ def one_primitive_top(xy: np.ndarray, cell: float = 0.005) -> bool:
             or area >= TOP_FILL_DISC * np.pi * (r + cell / 2) ** 2)
 
 
+def _grounds(N: int, S: int, st: _Stats, params: SegmentParams) -> bool:
+    """N reaches the table and S does not (rule ``held_parts``): S may join N though it has more voxels (a duck's
+    head seen better than its body by cameras looking down; a carton's top face, its walls hidden)."""
+    return ("held_parts" not in params.skip and reaches_table(st.bottom[N], st.top[N])
+            and not reaches_table(st.bottom[S], st.top[S]))
+
+
 def _groups(G: RegionGraph, patch_of_voxel: np.ndarray) -> dict[int, np.ndarray]:
     lab = np.array([G.find(i) for i in range(len(G.parent))])[patch_of_voxel]
     order = np.argsort(lab, kind="stable")
@@ -265,7 +276,7 @@ def attach_parts(G: RegionGraph, patch_of_voxel: np.ndarray, xyz: np.ndarray, pa
             nS = len(big[S])
             cands = []
             for N in G.adj[S]:
-                if N not in big or len(big[N]) <= nS:
+                if N not in big or (len(big[N]) <= nS and not _grounds(N, S, st, params)):
                     continue
                 if cuts and cut_top(xyz[big[S]], normals[big[S]], xyz[big[N]], normals[big[N]], st.bottom[S],
                                     st.top[S], st.top[N]):

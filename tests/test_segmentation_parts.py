@@ -136,3 +136,17 @@ def test_one_primitive_top_tells_one_top_from_two_met_at_a_tangent():
     assert not one_primitive_top(np.vstack([box, disc + [0.086, 0.025]]))  # a can beside a box
     assert not one_primitive_top(np.vstack([carton, disc + [0.15, 0.205]]))  # ... beside a carton's long side
     assert not one_primitive_top(np.vstack([carton, disc + [0.335, 0.085]]))  # ... its short side
+
+
+def test_a_part_held_up_by_a_smaller_region_on_the_table_joins_it():
+    """A duck seen from above: its head (a region of its own at the concave neck) has more voxels than the body
+    under it, which reaches the table. The head joins the body though it is the larger (rule ``held_parts``);
+    the same head beside a smaller object standing on the table (outside its footprint) does not."""
+    body = _grid(0.0, 0.07, 0.0, 0.05, 0.0, 0.045, step=0.008)  # sparse: its sides seen obliquely
+    # dense (seen from above), from 2.2 cm up: its lower part beside the body's upper part, not resting on it
+    head = _grid(0.025, 0.05, 0.015, 0.04, 0.022, 0.07, step=0.0025)
+    assert len(head) > len(body)
+    assert _attached(body, head, colours="same")
+    assert not _attached(body, head, colours="same", skip=("held_parts",))
+    beside = _grid(0.075, 0.115, 0.005, 0.045, 0.022, 0.07, step=0.0025)  # 4 cm wide, beside it: an object
+    assert not _attached(body, beside, colours="same")
