@@ -34,8 +34,8 @@ from ._walls import shed_neighbour_walls
 __all__ = ["CLEANUP_STEPS", "Voxels", "clean_up_regions"]
 
 #: every step and rule ``SegmentParams.skip`` may name, in the order they run
-CLEANUP_STEPS = ("attach_parts", "bunny_ears", "resting_parts", "cut_tops", "held_parts", "dissolve_slivers", "split_by_tops", "level_tops",
-                 "shed_walls", "carton_neighbours")
+CLEANUP_STEPS = ("attach_parts", "bunny_ears", "resting_parts", "cut_tops", "held_parts", "dissolve_slivers",
+                 "split_by_tops", "level_tops", "shed_walls", "carton_neighbours")
 
 SLIVER_WIDTH = 0.015  # m: regions narrower than this in x-y are valleys between objects, not objects
 

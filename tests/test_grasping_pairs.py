@@ -584,7 +584,7 @@ def test_push_contacts_clear_of_the_top_at_the_tasks_squeeze_depth_come_first():
     def tier(j):
         d = (c[j] - c[i]) * np.array([1.0, 1.0, 0.0])
         sep = float(np.linalg.norm(d))
-        out = _push_terms(_Arm(push), _Arm(push), i, j, c, c, up, d, sep, 0.5 * (c[i] + c[j]) * 0.0, 1.0)
+        out = _push_terms(_Arm(push), _Arm(push), i, j, c, c, up, d, sep, np.zeros(3), 1.0)
         return None if out is None else out[2]
 
     tiers_ok = {tier(j) for j in j_ok} - {None}

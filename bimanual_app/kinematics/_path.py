@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bimanual_app.transforms import make_T
+from bimanual_app.transforms import make_T, rotation_angle_between
 
 __all__ = ["WAYPOINT_STEP", "MAX_JOINT_JUMP", "PathFailure", "line_poses", "follow_poses"]
 
@@ -149,6 +149,7 @@ def _on_the_line(fk: dict[str, Forward], ends: dict, q: dict, sub: dict, limit: 
     Every arm gets the same samples (their straight joint lines, for one clock)."""
     arms = list(sub)
     n_sub = len(sub[arms[0]])
+    segs = {a: line_poses(*ends[a], n_sub + 1) for a in arms}  # the sub-steps' poses, as _split_step made them
     out = {a: [] for a in arms}
     for i in range(n_sub):
         qa = {a: (q[a] if i == 0 else sub[a][i - 1]) for a in arms}
@@ -157,11 +158,8 @@ def _on_the_line(fk: dict[str, Forward], ends: dict, q: dict, sub: dict, limit: 
         s = np.linspace(0.0, 1.0, n + 1)[1:, None]
         for a in arms:
             Qs = qa[a] + s * (sub[a][i] - qa[a])
-            if n > 1:
-                T0, T1 = ends[a]
-                seg = line_poses(T0, T1, n_sub + 1)[i:i + 2]
-                if not _near_segment(fk[a](Qs), seg[0], seg[1]):
-                    return None
+            if n > 1 and not _near_segment(fk[a](Qs), segs[a][i], segs[a][i + 1]):
+                return None
             out[a].extend(Qs)
     return out
 
@@ -172,6 +170,6 @@ def _near_segment(T: np.ndarray, T0: np.ndarray, T1: np.ndarray) -> bool:
     d = T1[:3, 3] - T0[:3, 3]
     u = np.clip((T[:, :3, 3] - T0[:3, 3]) @ d / max(float(d @ d), 1e-18), 0.0, 1.0)
     off = np.linalg.norm(T[:, :3, 3] - (T0[:3, 3] + u[:, None] * d), axis=1)
-    turn = [np.arccos(np.clip((np.einsum("nij,ij->n", T[:, :3, :3], R) - 1.0) / 2.0, -1.0, 1.0))
-            for R in (T0[:3, :3], T1[:3, :3])]
-    return bool(off.max() <= CONTINUITY_TOL_M and np.minimum(*turn).max() <= CONTINUITY_TOL_RAD)
+    R = T[:, :3, :3]
+    turn = np.minimum(rotation_angle_between(R, T0[:3, :3]), rotation_angle_between(R, T1[:3, :3]))
+    return bool(off.max() <= CONTINUITY_TOL_M and turn.max() <= CONTINUITY_TOL_RAD)
