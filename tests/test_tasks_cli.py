@@ -40,6 +40,10 @@ def test_task_end_to_end(fixture_dirs, tmp_path, task, extra, monkeypatch):
     assert rec["preview"]["world"] == ("ground truth" if extra else "estimate")
     assert rec["preview"]["contacts"] == []
     names = [p["phase"] for p in rec["plans"]]
+    track = rec["preview"]["object_track"]  # where the object was after each phase
+    assert [e["phase"] for e in track] == names and track[0]["on_table"] and max(e["rise_m"] for e in track) >= 0.10
+    if task == "handover":
+        assert track[-1]["held_by"] == ["secondary"] and "primary" in track[names.index("grasp")]["held_by"]
     if task == "handover":
         assert names[:3] == ["reach", "approach", "grasp"] and "release" in names and names[-1] == "hold"
         assert "secondary only" in check["detail"]
@@ -326,3 +330,18 @@ def test_two_failed_previews_of_one_object_leave_the_last_to_the_next_object(fix
 def test_the_preview_left_by_an_object_that_plans_nothing_goes_back(fixture_dirs, tmp_path, monkeypatch):
     """When the next object plans nothing, the preview it was left goes back to the first object's third."""
     assert _previews_in_order(fixture_dirs, tmp_path, monkeypatch, False) == [(0, 0), (0, 1), (0, 2)]
+
+
+def test_a_failed_preview_says_where_the_object_was_lost():
+    from bimanual_app.simulation import HoldSample
+    from bimanual_app.tasks._preview import phase_state, where_lost
+
+    def at(phase, rise, held):
+        return phase_state(phase, HoldSample(0.0, rise, frozenset(held), frozenset(held), rise < 0.01))
+
+    lost = [at("grasp", 0.0, {"primary"}), at("lift", 0.12, {"primary"}), at("receive-grasp", 0.12, {"primary", "secondary"}),
+            at("release", 0.0, set()), at("hold", 0.0, set())]
+    assert where_lost(lost) == " (held by the primary and secondary after receive-grasp; by no arm after release, 0.0 cm up)"
+    assert where_lost([at("grasp", 0.0, set()), at("lift", 0.0, set())]) == " (no arm held it after any phase)"
+    assert where_lost(lost[:3]) == "" and where_lost([]) == ""
+    assert lost[0] == {"phase": "grasp", "rise_m": 0.0, "held_by": ["primary"], "touched_by": ["primary"], "on_table": True}

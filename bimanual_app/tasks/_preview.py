@@ -17,6 +17,7 @@ import numpy as np
 
 from bimanual_app.simulation import (
     HoldMonitor,
+    HoldSample,
     Recorder,
     box_shape,
     build_world,
@@ -50,6 +51,8 @@ class PreviewResult:
         checks: per checked phase: the verdict (ok, held_s, max_rise, detail).
         contacts: unexpected contacts seen (``primary-secondary``, ``primary-table``...).
         tracking_error: per phase, the largest joint error at the phase's end (rad).
+        object_track: per phase, where the object was at the phase's end (:func:`phase_state`): how far up,
+            which arms held it (both fingers pressing), which touched it, whether it lay on the table.
         sim_time: simulated seconds; wall_time: seconds it took.
         recorder: the frames (GIF and key frames are written by the caller).
         world_truth: whether the world was the ground truth.
@@ -66,10 +69,12 @@ class PreviewResult:
     recorder: Recorder | None = None
     world_truth: bool = False
     warnings: list = field(default_factory=list)
+    object_track: list = field(default_factory=list)
 
     def to_json(self) -> dict:
         return {"success": self.success, "reason": self.reason, "checks": self.checks, "contacts": self.contacts,
-                "tracking_error_rad": self.tracking_error, "object_mass_kg": self.object_mass,
+                "tracking_error_rad": self.tracking_error, "object_track": self.object_track,
+                "object_mass_kg": self.object_mass,
                 "sim_time_s": round(self.sim_time, 3), "wall_time_s": round(self.wall_time, 3),
                 "world": "ground truth" if self.world_truth else "estimate", "warnings": self.warnings}
 
@@ -174,6 +179,7 @@ def preview_plan(plan: TaskPlan, inputs, robot, object_id: int, truth: bool = Fa
         contacts: set[str] = set()
         checks: dict = {}
         tracking: dict = {}
+        track: list = []
 
         def watch(w):
             for a, b in w.arm_contacts():
@@ -186,6 +192,7 @@ def preview_plan(plan: TaskPlan, inputs, robot, object_id: int, truth: bool = Fa
             trs = plan.phase_trajectories(k)
             world.run_plan(trs)
             tracking[ph.name] = float(max(np.max(np.abs(world.arms[a].q() - tr.q[-1])) for a, tr in trs.items()))
+            track.append(phase_state(ph.name, mon.sample()))
             if rec is not None:
                 rec.keyframe(ph.name)
             if log is not None:
@@ -197,7 +204,7 @@ def preview_plan(plan: TaskPlan, inputs, robot, object_id: int, truth: bool = Fa
                                         exclusive=exclusive)
                 checks[ph.name] = {"check": ph.check, "ok": v.ok, "held_s": round(v.held_s, 3),
                                    "max_rise_m": round(v.max_rise, 4), "detail": v.detail}
-        failed = [f"{n}: {c['detail']}" for n, c in checks.items() if not c["ok"]]
+        failed = [f"{n}: {c['detail']}{where_lost(track)}" for n, c in checks.items() if not c["ok"]]
         if not checks:
             failed.append("the plan has no success check")
         bad_contacts = sorted(contacts)
@@ -209,6 +216,28 @@ def preview_plan(plan: TaskPlan, inputs, robot, object_id: int, truth: bool = Fa
             reason = "; ".join(f"{n}: {c['detail']}" for n, c in checks.items())
         ok = not failed and not bad_contacts
         return PreviewResult(ok, reason, checks, bad_contacts, tracking, obj.shape.mass, world.time,
-                             time.perf_counter() - t_wall, rec, truth, warnings)
+                             time.perf_counter() - t_wall, rec, truth, warnings, track)
     finally:
         world.close()
+
+
+def phase_state(phase: str, s: HoldSample) -> dict:
+    """One ``PreviewResult.object_track`` entry: the object at the end of ``phase`` (a HoldMonitor sample)."""
+    return {"phase": phase, "rise_m": round(float(s.rise), 4), "held_by": sorted(s.holders),
+            "touched_by": sorted(s.touching), "on_table": bool(s.on_table)}
+
+
+def where_lost(track: list[dict]) -> str:
+    """A clause for a failed check's reason: where the object was last lost, from ``track`` (``object_track``):
+    the last phase after which no arm held it while one had after the phase before (" (held by the primary
+    after grasp; by no arm after lift, 0.0 cm up)"), or that no arm held it after any phase; "" when an arm
+    held it at the end or the track is empty."""
+    held = [bool(e["held_by"]) for e in track]
+    if not track or held[-1]:
+        return ""
+    if not any(held):
+        return " (no arm held it after any phase)"
+    k = max(i for i in range(len(track)) if held[i] and i + 1 < len(track) and not held[i + 1])
+    a, b = track[k], track[k + 1]
+    return (f" (held by the {' and '.join(a['held_by'])} after {a['phase']}; by no arm after {b['phase']}, "
+            f"{100 * b['rise_m']:.1f} cm up)")
