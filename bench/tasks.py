@@ -137,7 +137,24 @@ def outcome(rec: dict) -> dict:
         reason = ("not approved: the preview on the reconstruction failed "
                   f"({rec.get('preview', {}).get('reason', '')}); in reality the plan holds")
     return {"planned": planned, "estimate_ok": estimate_ok, "reality_ok": reality_ok, "truth_ok": ok,
-            "stage": "" if ok else rec.get("failed_stage", ""), "reason": reason}
+            "stage": "" if ok else rec.get("failed_stage", ""), "reason": reason, "lost": lost_where(rec)}
+
+
+def lost_where(rec: dict) -> str:
+    """Where a planned run's failed preview lost the object: ``"reconstruction: ..."`` when the task's own
+    preview failed (nothing was approved), else ``"reality: ..."`` when the approved plan failed in the
+    ground-truth world; ``... never held`` or ``... after PHASE`` (the phase after which no arm held it any
+    more, ``bimanual_app.tasks.last_loss``); "" when neither failed or the record has no object track."""
+    from bimanual_app.tasks import last_loss
+
+    for world, key in (("reconstruction", "preview"), ("reality", "preview_truth")):
+        pv = rec.get(key) or {}
+        if pv and not pv.get("success"):
+            loss = last_loss(pv.get("object_track") or [])
+            if loss is None:
+                return ""
+            return f"{world}: " + ("never held" if loss["held_after"] is None else f"after {loss['lost_after']}")
+    return ""
 
 
 def run_one(scene: Path, work: Path, task: str, masks: bool = False, leave_out: tuple = (),
@@ -474,14 +491,34 @@ def report(results: list[dict], modes: list[str], tasks: list[str], total: float
         L += [f"## {SET_NAME[name].capitalize()} set ({span}: {len(rs)} scenes run)", ""]
         L += set_table(rs, modes, tasks) + [""]
     L += stage_rows(results, modes, tasks) + [""] + fallback_rows(results, modes, tasks)
+    L += [""] + lost_rows(results, modes, tasks)
     fails = [(name, m, t, r["rows"][m][t]) for name in ("heldout", "tuning", "other") for r in by_set[name]
              for m in modes for t in tasks if t in r["rows"].get(m, {}) and not r["rows"][m][t]["truth_ok"]]
     if fails:
         L += ["", "Failures:", ""]
         for name, m, t, r in fails:
+            lost = f" (object lost in the {r['lost']})" if r.get("lost") else ""
             L.append(f"- {r.get('scene')} ({SET_NAME[name]}), {MODE_NAME[m]}, {t}, object {r.get('object')}: "
-                     f"[{r['stage'] or 'preview'}] {r['reason'][:220]}")
+                     f"[{r['stage'] or 'preview'}]{lost} {r['reason'][:220]}")
     return "\n".join(L) + "\n"
+
+
+def lost_rows(results: list[dict], modes: list[str], tasks: list[str]) -> list[str]:
+    """How many failed runs' previews lost the object where (``lost_where``): in the task's own preview (the
+    plan was not approved) or in reality (approved, then dropped), never held or after which phase."""
+    seen: dict = {}
+    for r in results:
+        for m in modes:
+            for t, row in r["rows"].get(m, {}).items():
+                if not row["truth_ok"] and row.get("lost"):
+                    seen[(t, m, row["lost"])] = seen.get((t, m, row["lost"]), 0) + 1
+    if not seen:
+        return ["Failed previews: none lost the object (or no record had an object track)."]
+    L = ["Failed previews, where the object was lost (the preview's `object_track`: the phase after which no arm "
+         "held it any more):", "", "| task | transforms / objects | where | runs |", "| --- | --- | --- | --- |"]
+    for (t, m, where), n in sorted(seen.items(), key=lambda x: (x[0][0], x[0][1], -x[1], x[0][2])):
+        L.append(f"| {t} | {MODE_NAME[m]} | {where} | {n} |")
+    return L
 
 
 def fallback_rows(results: list[dict], modes: list[str], tasks: list[str]) -> list[str]:

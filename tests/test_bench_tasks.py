@@ -242,3 +242,23 @@ def test_two_runs_paired_scene_by_scene_from_their_progress_lines():
 def test_leave_out_takes_the_hand_over_searchs_fallbacks_too():
     args = bench_tasks.parse_args(["--leave-out", "shallow-holds,handover-redraws"])
     assert bench_tasks.leave_out_names(args) == ("shallow-holds", "handover-redraws")
+
+
+def test_failed_previews_say_where_the_object_was_lost():
+    def track(*held):  # the arms holding the object after each phase
+        return [{"phase": p, "rise_m": 0.0, "held_by": h, "touched_by": h, "on_table": True}
+                for p, h in zip(("grasp", "lift", "transfer"), held)]
+
+    dropped = {"plans": {"primary": []}, "preview": {"success": True, "object_track": track(["primary"] * 3)},
+               "preview_truth": {"success": False, "object_track": track(["primary"], [], [])}}
+    assert bench_tasks.outcome(dropped)["lost"] == "reality: after lift"
+    refused = {"plans": {"primary": []}, "preview": {"success": False, "object_track": track([], [], [])},
+               "preview_truth": {"success": False, "object_track": track([], [], [])}}
+    assert bench_tasks.outcome(refused)["lost"] == "reconstruction: never held"
+    assert bench_tasks.outcome({"failed_stage": "grasp", "reason": "none"})["lost"] == ""
+    res = _results({"pipeline": [False, False, True]})
+    for r, where in zip(res, ("reality: after lift", "reality: after lift", "")):
+        r["rows"]["pipeline"]["joint-grasp"]["lost"] = where
+    text = "\n".join(bench_tasks.lost_rows(res, ["pipeline"], ["joint-grasp"]))
+    assert "| joint-grasp | pipeline (calibrated) | reality: after lift | 2 |" in text
+    assert "none lost" in bench_tasks.lost_rows(_results({"pipeline": [True]}), ["pipeline"], ["joint-grasp"])[0]

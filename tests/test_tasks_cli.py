@@ -334,6 +334,7 @@ def test_the_preview_left_by_an_object_that_plans_nothing_goes_back(fixture_dirs
 
 def test_a_failed_preview_says_where_the_object_was_lost():
     from bimanual_app.simulation import HoldSample
+    from bimanual_app.tasks import last_loss
     from bimanual_app.tasks._preview import phase_state, where_lost
 
     def at(phase, rise, held):
@@ -343,5 +344,8 @@ def test_a_failed_preview_says_where_the_object_was_lost():
             at("release", 0.0, set()), at("hold", 0.0, set())]
     assert where_lost(lost) == " (held by the primary and secondary after receive-grasp; by no arm after release, 0.0 cm up)"
     assert where_lost([at("grasp", 0.0, set()), at("lift", 0.0, set())]) == " (no arm held it after any phase)"
-    assert where_lost(lost[:3]) == "" and where_lost([]) == ""
+    assert where_lost(lost[:3]) == "" and where_lost([]) == "" and last_loss(lost[:3]) is None
+    assert last_loss(lost) == {"held_after": "receive-grasp", "by": ["primary", "secondary"], "lost_after": "release",
+                               "rise_m": 0.0}
+    assert last_loss([at("grasp", 0.0, set())])["held_after"] is None
     assert lost[0] == {"phase": "grasp", "rise_m": 0.0, "held_by": ["primary"], "touched_by": ["primary"], "on_table": True}

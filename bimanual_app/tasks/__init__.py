@@ -12,6 +12,8 @@ Public API (imported lazily, so ``bijcr --help`` loading ``bimanual_app.tasks.cl
         grasping.HANDOVER_FALLBACKS)
     TaskMotion: the motion layer for one task (IK, OMPL, Cartesian moves, validation, collision contexts)
     preview_plan(plan, inputs, robot, object_id, truth=False) -> PreviewResult
+    last_loss(preview.object_track) -> {held_after, by, lost_after, rise_m} | None: where a failed preview lost
+        the object (the phase after which no arm held it any more)
     check_calibration_scene(scene, calibration, path): refuses a calibration of another scene
     joint_candidates / handover_candidates(grasps_json, path): the tasks' inputs from grasps.json
 CLI: ``bijcr task joint-grasp|handover SCENE`` (bimanual_app/tasks/cli.py). See docs/tasks.md.
@@ -26,7 +28,7 @@ _EXPORTS = {
     "TaskPlan": "_plan", "Phase": "_plan",
     "plan_joint_grasp": "_planners", "plan_handover": "_planners", "FALLBACKS": "_planners",
     "TaskMotion": "_motion", "PlanFailure": "_motion", "robot_points_mask": "_motion",
-    "preview_plan": "_preview", "PreviewResult": "_preview",
+    "preview_plan": "_preview", "PreviewResult": "_preview", "last_loss": "_preview",
     "GraspSpec": "_grasps", "JointChoice": "_grasps", "HandoverChoice": "_grasps",
     "joint_candidates": "_grasps", "handover_candidates": "_grasps",
     "TaskInputs": "_inputs", "check_calibration_scene": "_inputs", "ensure_stages": "_inputs",

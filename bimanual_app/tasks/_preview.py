@@ -227,17 +227,27 @@ def phase_state(phase: str, s: HoldSample) -> dict:
             "touched_by": sorted(s.touching), "on_table": bool(s.on_table)}
 
 
-def where_lost(track: list[dict]) -> str:
-    """A clause for a failed check's reason: where the object was last lost, from ``track`` (``object_track``):
-    the last phase after which no arm held it while one had after the phase before (" (held by the primary
-    after grasp; by no arm after lift, 0.0 cm up)"), or that no arm held it after any phase; "" when an arm
-    held it at the end or the track is empty."""
+def last_loss(track: list[dict]) -> dict | None:
+    """Where the object of a preview's ``object_track`` (:func:`phase_state` entries) was last lost: ``{"held_after":
+    the last phase after which an arm held it (None: no arm ever did), "by": those arms, "lost_after": the next
+    phase, "rise_m": its height then}``; None when an arm held it at the end or the track is empty."""
     held = [bool(e["held_by"]) for e in track]
     if not track or held[-1]:
-        return ""
+        return None
     if not any(held):
+        return {"held_after": None, "by": [], "lost_after": track[0]["phase"], "rise_m": track[-1]["rise_m"]}
+    k = max(i for i in range(len(track) - 1) if held[i] and not held[i + 1])
+    return {"held_after": track[k]["phase"], "by": track[k]["held_by"], "lost_after": track[k + 1]["phase"],
+            "rise_m": track[k + 1]["rise_m"]}
+
+
+def where_lost(track: list[dict]) -> str:
+    """A clause for a failed check's reason from :func:`last_loss` (" (held by the primary after grasp; by no arm
+    after lift, 0.0 cm up)", or " (no arm held it after any phase)"); "" when it was held at the end."""
+    loss = last_loss(track)
+    if loss is None:
+        return ""
+    if loss["held_after"] is None:
         return " (no arm held it after any phase)"
-    k = max(i for i in range(len(track)) if held[i] and i + 1 < len(track) and not held[i + 1])
-    a, b = track[k], track[k + 1]
-    return (f" (held by the {' and '.join(a['held_by'])} after {a['phase']}; by no arm after {b['phase']}, "
-            f"{100 * b['rise_m']:.1f} cm up)")
+    return (f" (held by the {' and '.join(loss['by'])} after {loss['held_after']}; by no arm after "
+            f"{loss['lost_after']}, {100 * loss['rise_m']:.1f} cm up)")
