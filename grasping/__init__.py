@@ -12,6 +12,8 @@ Public API:
     write_grasps_json(path, plan) / plan_to_dict(plan) / draw_plan(path, plan, points, labels)
     rotate_about_approach(T_b_g)                        the same grasp turned 180 degrees about z
     grasp_stage(cloud, segments, out_dir, calibration=None, ...) -> GraspStage   (bijcr grasp / run)
+    redraw_handovers(cloud, segments, calibration, object_id, refused_picks) -> [hand-over dicts]   the search
+        run again on one object without picks a task's preview saw fail (nothing written)
     lift_clear(collider, scene, lifts, T_b1_g, width, margin) -> (C,) bool   a gripper clear along sampled lifts
     HANDOVER_FALLBACKS: name -> what it does, the hand-over search's fallbacks (grasp_stage(leave_out=...))
 CLI: ``bijcr grasp SCENE_DIR_OR_CLOUD --segments DIR/segments.npz --out DIR [--calibration calibration.json]``.
@@ -36,7 +38,7 @@ _EXPORTS = {
     "GraspPlan": "_plan", "ObjectPlan": "_plan", "PlanParams": "_plan", "plan_grasps": "_plan",
     "PushParams": "_push", "push_contacts": "_push",
     "ArmReach": "_reach", "ReachFilter": "_reach", "ReachResult": "_reach", "callable_filter": "_reach", "pregrasp_pose": "_reach",
-    "GraspStage": "_stage", "grasp_stage": "_stage",
+    "GraspStage": "_stage", "grasp_stage": "_stage", "redraw_handovers": "_stage",
 }
 
 __all__ = [
@@ -47,7 +49,7 @@ __all__ = [
     "callable_filter", "pregrasp_pose", "GripperCollider", "SceneOctree", "grippers_collide", "grippers_distance",
     "SceneCloud", "scene_cloud", "load_cloud", "load_segments", "load_calibration", "b2b_sigma",
     "resolve_inputs", "ObjectGeometry", "Support", "estimate_support", "object_geometry", "check_graspable",
-    "plan_to_dict", "write_grasps_json", "draw_plan", "grasp_stage", "GraspStage",
+    "plan_to_dict", "write_grasps_json", "draw_plan", "grasp_stage", "GraspStage", "redraw_handovers",
 ]
 
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

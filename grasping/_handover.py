@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bimanual_app.transforms import inv_T, perpendicular_basis
+from bimanual_app.transforms import inv_T, perpendicular_basis, rotation_angle_between
 
 from ._antipodal import GraspSet, rotate_about_approach
 from ._arms import Arm, ArmGrasps, TwoArmCheck, reachable_grasps
@@ -111,6 +111,9 @@ class HandoverParams:
         machines' BLAS kernels, flipped the hand-over of 14 of 50 held-out scenes, most in this search).
     alternatives: hand-overs kept per object (:func:`plan_handovers`): the best first, then ones with another
         giver grasp or transfer pose, for the task to fall back on when one cannot be planned or previewed.
+    refused_picks: K giver picks T_b1_g (4, 4) a task's physics preview saw fail (``grasping.redraw_handovers``):
+        picks within ``REFUSED_SHIFT`` m and ``REFUSED_TURN`` rad of one (either way round its approach) are
+        not given from.
     b2b_sigma_m, b2b_sigma_rad: 1-sigma error of the calibrated ``T_b1_b2`` (translation per axis, rotation)
         (``bijcr grasp`` takes them from calibration.json's ``uncertainty``). The secondary's idea of where the
         object is at the transfer pose is off by about ``sqrt(s_m^2 + (s_rad d)^2)`` along any axis, d = the
@@ -146,6 +149,7 @@ class HandoverParams:
     shallow_depths: tuple[float, ...] = (0.4, 0.25)
     pairs: PairParams = PairParams()
     towards_object: tuple[float, ...] = (0.5, 1.0)
+    refused_picks: tuple = ()
 
 
 # The hand-over search's fallbacks by name (``grasp_stage(leave_out=)``, bench/tasks.py --leave-out): each
@@ -212,6 +216,10 @@ class Handover:
 
 
 ARM_NAMES = ("primary", "secondary")
+# a giver pick this near a refused one (HandoverParams.refused_picks) is the same pick: the pick poses the
+# sampler draws are a centimetre or more apart where they differ in where the fingers close
+REFUSED_SHIFT = 0.01
+REFUSED_TURN = np.deg2rad(20.0)
 
 
 def other_arm(arm: str) -> str:
@@ -411,6 +419,7 @@ def handover_givers(picks: GraspSet, free: GraspSet, reached: ArmGrasps, prim: A
                               free, params.gap, placed) for i in range(len(picks))]
     n = np.array([len(c) for c in clear], dtype=int)
     cand = np.nonzero(n > 0)[0]
+    cand = cand[~refused(picks.T_b1_g[cand], params.refused_picks)]
     hold = np.round(giver_hold_probability(picks.depth[cand], params), 1)
     cand = cand[np.lexsort((-picks.score[cand], -np.minimum(n[cand], params.enough_clear), -hold))]
     known = {int(i): j for j, i in enumerate(reached.index)}
@@ -430,6 +439,21 @@ def handover_givers(picks: GraspSet, free: GraspSet, reached: ArmGrasps, prim: A
                        np.array([ag.T_b_g[j] for ag, j in parts]).reshape(-1, 4, 4),
                        more.tried, more.reasons)
     return givers, [clear[i] for i in chosen]
+
+
+def refused(T_b1_g: np.ndarray, refused_picks: np.ndarray) -> np.ndarray:
+    """(N,) bool: the poses ``T_b1_g`` (N, 4, 4) within ``REFUSED_SHIFT`` m and ``REFUSED_TURN`` rad of one of
+    ``refused_picks`` (K, 4, 4), or of it turned 180 degrees about its approach (the same grasp)."""
+    T = np.asarray(T_b1_g, dtype=np.float64).reshape(-1, 4, 4)
+    Rf = np.asarray(refused_picks, dtype=np.float64).reshape(-1, 4, 4)
+    if not len(T) or not len(Rf):
+        return np.zeros(len(T), dtype=bool)
+    near = np.linalg.norm(T[:, None, :3, 3] - Rf[None, :, :3, 3], axis=-1) < REFUSED_SHIFT
+    out = np.zeros(len(T), dtype=bool)
+    for Rk in (Rf, rotate_about_approach(Rf)):
+        turn = rotation_angle_between(T[:, None, :3, :3], Rk[None, :, :3, :3])
+        out |= np.any(near & (turn < REFUSED_TURN), axis=1)
+    return out
 
 
 def waiting_receiver_last(givers: ArmGrasps, clear: list, q_receiver: np.ndarray, check: TwoArmCheck,

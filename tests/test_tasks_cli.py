@@ -5,6 +5,7 @@ with no feasible grasp and a planner that finds no path in time give a clear fai
 
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -248,6 +249,7 @@ def test_when_every_preview_fails_the_first_is_reported_and_not_approved(fixture
     w = _with_alternative(work, tmp_path)
     monkeypatch.setattr(_preview, "preview_plan",
                         lambda plan, *a, **kw: _preview.PreviewResult(False, f"hold: dropped ({len(plan.phases)} phases)"))
+    _without_redraw(monkeypatch)  # the candidates of grasps.json only (the redraw: its own test below)
     out = tmp_path / "o"
     assert _run(["handover", scene, "--work", w, "--out", out]) == 1
     rec = json.loads((out / "task.json").read_text())
@@ -295,6 +297,44 @@ def _two_objects_with_handovers(work, tmp_path, n_first: int):
     return w
 
 
+def _without_redraw(monkeypatch) -> None:
+    """The task without its "preview-redraw" fallback (no search again after every preview failed)."""
+    from bimanual_app.tasks import _run as run_module
+
+    monkeypatch.setattr(run_module, "_redraw", lambda *a, **kw: None)
+
+
+def test_when_every_preview_fails_the_hand_overs_are_drawn_again_without_those_picks(fixture_dirs, tmp_path,
+                                                                                    monkeypatch):
+    """Every candidate of grasps.json fails its preview: the grasp stage's search runs again on the object
+    without the refused picks; a redrawn hand-over whose preview passes is the task's plan."""
+    from bimanual_app.tasks import _preview
+    from grasping._handover import refused as near_refused
+
+    monkeypatch.setenv("BIJCR_APPROVAL_KEY", "test-key")
+    scene, work = fixture_dirs
+    w = _with_alternative(work, tmp_path)
+    real = _preview.preview_plan
+
+    def only_redrawn_pass(plan, *a, **kw):
+        if not plan.info["source"].startswith("redrawn "):
+            return _preview.PreviewResult(False, "hold: dropped (test)")
+        return real(plan, *a, **kw)
+
+    monkeypatch.setattr(_preview, "preview_plan", only_redrawn_pass)
+    out = tmp_path / "o"
+    assert _run(["handover", scene, "--work", w, "--out", out]) == 0
+    rec = json.loads((out / "task.json").read_text())
+    assert rec["success"] is True and rec["redrawn"][0]["object"] == 0 and rec["redrawn"][0]["found"] >= 1
+    assert rec["redrawn"][0]["refused_picks"] == 2 and rec["previews_tried"][-1]["success"]
+    assert rec["plan"]["info"]["source"].startswith("redrawn objects[0].")
+    g = json.loads((Path(w) / "grasps" / "grasps.json").read_text())["objects"][0]
+    refused = np.stack([h["giver"]["pick"]["T_b1_g"] for h in [g["handover"], *g["handover_alternatives"]]])
+    pick = np.asarray(rec["plan"]["info"]["grasps"]["pick"]["T_b1_g"])
+    assert not near_refused(pick[None], refused)[0]  # another pick than the two that failed
+    assert load_approval(out / "approval.json").verdict == "pass"
+
+
 def _previews_in_order(fixture_dirs, tmp_path, monkeypatch, object_1_plans: bool) -> list:
     """The (object, candidate) previewed, in order, when every preview fails; plans are object 0's first
     candidate's (the geometry is beside the point), and object 1's fail to plan unless ``object_1_plans``."""
@@ -315,6 +355,7 @@ def _previews_in_order(fixture_dirs, tmp_path, monkeypatch, object_1_plans: bool
 
     monkeypatch.setattr(run_module, "_plan_candidate", plan_candidate)
     monkeypatch.setattr(_preview, "preview_plan", lambda *a, **kw: _preview.PreviewResult(False, "hold: dropped"))
+    _without_redraw(monkeypatch)  # the budget among grasps.json's candidates
     out = tmp_path / "o"
     assert _run(["handover", scene, "--work", w, "--out", out]) == 1
     rec = json.loads((out / "task.json").read_text())

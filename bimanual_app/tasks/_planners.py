@@ -50,6 +50,9 @@ FALLBACKS = {
     "skip-home": "the giver stays backed off where its start pose meets the object the receiver holds",
     "open-at-goal": "a gripper whose fingers, opened where it stands, would meet the map moves as it is and opens "
                     "at its goal",
+    "preview-redraw": "where every hand-over previewed failed its preview, the grasp stage's search runs again on "
+                      "those objects without the picks that failed (grasping.redraw_handovers), for REDRAW_PREVIEWS "
+                      "more previews",
 }
 
 LIFT = 0.15  # m the joint grasp lifts the object (>= 10 cm needed)

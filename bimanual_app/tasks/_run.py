@@ -32,6 +32,8 @@ MAX_PREVIEWS = 3  # plans previewed before the task gives up: a failed preview m
 # estimated body is what fails them (a partly seen object, a neighbour's body in the fingers' way), so the
 # last preview goes to the next object rather than to a third grasp of the same doubtful one
 PREVIEWS_PER_OBJECT = 2
+# previews for the hand-overs drawn again where every previewed one failed (the "preview-redraw" fallback)
+REDRAW_PREVIEWS = 2
 OPEN_START = 0.0  # gripper width at the start when nothing is known (closed, as the Piper rests)
 
 
@@ -274,6 +276,7 @@ class _Search:
     chosen: _Attempt | None = None  # the first whose preview passed
     failed: _Attempt | None = None  # the first whose preview failed
     t_preview: float = 0.0
+    max_previews: int = MAX_PREVIEWS  # raised by the redraw (REDRAW_PREVIEWS)
     start_problems: list = field(default_factory=list)  # the start configuration's collisions, if any
 
     @property
@@ -286,7 +289,7 @@ class _Search:
                 if o != chosen]
 
     def done(self) -> bool:
-        return self.chosen is not None or len(self.attempts) >= MAX_PREVIEWS
+        return self.chosen is not None or len(self.attempts) >= self.max_previews
 
 
 def _plan_candidate(opts, motion_o, c, k: int, q_start, width_start, pts_o, up):
@@ -362,7 +365,7 @@ def _object_motion(opts, inputs, robot, o: int, rec: dict, s: _Search):
 
 def _try_object(opts, inputs, robot, o: int, cands, rec: dict, s: _Search, previews: int = MAX_PREVIEWS) -> None:
     """Plan and preview object ``o``'s candidates in order, from where an earlier call stopped, until one
-    passes its preview (``s.chosen``), ``previews`` more were previewed or ``MAX_PREVIEWS`` previews were made
+    passes its preview (``s.chosen``), ``previews`` more were previewed or ``s.max_previews`` previews were made
     in all; records what was tried in ``s``."""
     from ._motion import PlanFailure
     from ._preview import preview_plan
@@ -373,7 +376,7 @@ def _try_object(opts, inputs, robot, o: int, cands, rec: dict, s: _Search, previ
     motion_o, pts_o = built
     errors = s.errors.setdefault(o, [])
     mine = [c for c in cands if c.object_id == o][:MAX_CANDIDATES]
-    budget = min(MAX_PREVIEWS, len(s.attempts) + previews)
+    budget = min(s.max_previews, len(s.attempts) + previews)
     while s.next_k.get(o, 0) < len(mine) and len(s.attempts) < budget:
         k = s.next_k.get(o, 0)
         s.next_k[o] = k + 1
@@ -439,6 +442,7 @@ def _plan_objects(opts, inputs, robot, cands, oid, q_start, width_start, rec: di
         if s.done():
             break
         _try_object(opts, inputs, robot, o, cands, rec, s)
+    _redraw(opts, inputs, robot, rec, s)
     timings["plan"] = time.perf_counter() - t_start - s.t_preview
     if s.attempts:
         timings["preview"] = s.t_preview
@@ -450,6 +454,40 @@ def _plan_objects(opts, inputs, robot, cands, oid, q_start, width_start, rec: di
         rec["previews_tried"] = [{"object": a.object_id, "candidate_rank": a.rank, "success": a.preview.success,
                                   "reason": a.preview.reason} for a in s.attempts]
     return s
+
+
+def _redraw(opts, inputs, robot, rec: dict, s: _Search) -> None:
+    """Hand-over, where every candidate previewed failed its preview (the "preview-redraw" fallback): the
+    grasp stage's search runs again on each object previewed, in that order, without the giver's picks its
+    previews saw fail (``grasping.redraw_handovers``: another draw of picks and receivers), and the hand-overs
+    it finds get ``REDRAW_PREVIEWS`` more previews between them. Recorded in ``rec["redrawn"]``."""
+    from grasping import redraw_handovers
+
+    from ._grasps import handover_candidates
+
+    if opts.task != "handover" or s.chosen is not None or not s.attempts or "preview-redraw" in opts.leave_out:
+        return
+    s.max_previews = len(s.attempts) + REDRAW_PREVIEWS
+    rec["redrawn"] = []
+    for o in dict.fromkeys(a.object_id for a in s.attempts):
+        if s.done():
+            break
+        refused = [np.asarray(a.plan.info["grasps"]["pick"]["T_b1_g"]) for a in s.attempts if a.object_id == o]
+        _log(opts, f"object {o}: every hand-over previewed failed; its hand-overs drawn again without "
+                   f"{len(refused)} refused pick(s)")
+        p = inputs.paths
+        found = redraw_handovers(p.cloud, p.segments, p.calibration, o, refused)
+        rec["redrawn"].append({"object": o, "refused_picks": len(refused), "found": len(found)})
+        if not found:
+            continue
+        obj = next((d for d in inputs.grasps.get("objects", []) if d.get("id") == o), {})
+        again = {"pregrasp_distance": inputs.grasps.get("pregrasp_distance"),
+                 "objects": [{**obj, "handover": found[0], "handover_alternatives": found[1:]}]}
+        cands = handover_candidates(again, str(p.grasps))
+        for c in cands:
+            c.info["source"] = "redrawn " + c.info["source"]
+        s.next_k[o] = 0
+        _try_object(opts, inputs, robot, o, cands, rec, s, previews=REDRAW_PREVIEWS)
 
 
 def _no_plan_failure(s: _Search) -> tuple[str, str]:
