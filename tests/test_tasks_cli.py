@@ -328,6 +328,7 @@ def test_when_every_preview_fails_the_hand_overs_are_drawn_again_without_those_p
     assert rec["success"] is True and rec["redrawn"][0]["object"] == 0 and rec["redrawn"][0]["found"] >= 1
     assert rec["redrawn"][0]["refused_picks"] == 2 and rec["previews_tried"][-1]["success"]
     assert rec["plan"]["info"]["source"].startswith("redrawn objects[0].")
+    assert "preview-redraw" in rec["plan"]["info"]["fallbacks"]
     g = json.loads((Path(w) / "grasps" / "grasps.json").read_text())["objects"][0]
     refused = np.stack([h["giver"]["pick"]["T_b1_g"] for h in [g["handover"], *g["handover_alternatives"]]])
     pick = np.asarray(rec["plan"]["info"]["grasps"]["pick"]["T_b1_g"])

@@ -488,6 +488,8 @@ def _redraw(opts, inputs, robot, rec: dict, s: _Search) -> None:
             c.info["source"] = "redrawn " + c.info["source"]
         s.next_k[o] = 0
         _try_object(opts, inputs, robot, o, cands, rec, s, previews=REDRAW_PREVIEWS)
+    if s.chosen is not None:
+        s.chosen.plan.info.setdefault("fallbacks", []).append("preview-redraw")  # as the planner's own record theirs
 
 
 def _no_plan_failure(s: _Search) -> tuple[str, str]:
