@@ -79,9 +79,10 @@ STUDIED_SEEDS = (tuple(range(1000, 1020)) + tuple(range(7000, 7050)) + tuple(ran
                  + tuple(range(14000, 14050)) + tuple(range(15000, 15050)) + tuple(range(16000, 16050))
                  + tuple(range(17000, 17050)) + tuple(range(18000, 18050)) + tuple(range(19000, 19050))
                  + tuple(range(21000, 21050)) + tuple(range(22000, 22050)) + tuple(range(23000, 23050))
-                 + tuple(range(24000, 24050)) + tuple(range(25000, 25050))
+                 + tuple(range(24000, 24050)) + tuple(range(25000, 25050)) + tuple(range(26000, 26050))
+                 + tuple(range(27000, 27050))
                  )  # once held out, or run as a development range and read scene by scene (21000-21049, 22000-22049,
-#                    23000-23049, 24000-24049, 25000-25049)
+#                    23000-23049, 24000-24049, 25000-25049, 26000-26049, 27000-27049)
 SETS = {"heldout": HELDOUT_SEEDS, "tuning": TUNING_SEEDS}
 SET_NAME = {"heldout": "held-out", "tuning": "tuning", "other": "other seeds"}
 TARGET = 0.90  # held-out pipeline success, both tasks
