@@ -214,31 +214,38 @@ def _with_alternative(work, tmp_path):
     return w
 
 
-def test_a_failed_preview_moves_on_to_the_next_candidate(fixture_dirs, tmp_path, monkeypatch):
-    """The first plan's preview (on the reconstruction) drops the object: the task plans and previews the
-    next candidate, which passes; task.json lists both previews and the plan is the second candidate's."""
+def _handover_failing_previews(monkeypatch, scene, w, tmp_path, fails) -> tuple[dict, list]:
+    """The hand-over run (exit code 0 expected) with the preview on the reconstruction failing the plans for
+    which ``fails(plan, k)`` (k: the preview's number) is true and run for real on the others; returns
+    task.json and, per preview, whether it was on the ground truth."""
     from bimanual_app.tasks import _preview
 
-    monkeypatch.setenv("BIJCR_APPROVAL_KEY", "test-key")
-    scene, work = fixture_dirs
-    w = _with_alternative(work, tmp_path)
     real, calls = _preview.preview_plan, []
 
-    def first_fails(plan, *a, **kw):
+    def preview(plan, *a, **kw):
         calls.append(kw.get("truth", False))
-        if len(calls) == 1:
+        if fails(plan, len(calls) - 1):
             return _preview.PreviewResult(False, "hold: the object slipped out (test)")
         return real(plan, *a, **kw)
 
-    monkeypatch.setattr(_preview, "preview_plan", first_fails)
+    monkeypatch.setattr(_preview, "preview_plan", preview)
     out = tmp_path / "o"
     assert _run(["handover", scene, "--work", w, "--out", out]) == 0
-    rec = json.loads((out / "task.json").read_text())
+    return json.loads((out / "task.json").read_text()), calls
+
+
+def test_a_failed_preview_moves_on_to_the_next_candidate(fixture_dirs, tmp_path, monkeypatch):
+    """The first plan's preview (on the reconstruction) drops the object: the task plans and previews the
+    next candidate, which passes; task.json lists both previews and the plan is the second candidate's."""
+    monkeypatch.setenv("BIJCR_APPROVAL_KEY", "test-key")
+    scene, work = fixture_dirs
+    w = _with_alternative(work, tmp_path)
+    rec, calls = _handover_failing_previews(monkeypatch, scene, w, tmp_path, lambda plan, k: k == 0)
     assert rec["success"] is True and calls == [False, False]
     assert [p["success"] for p in rec["previews_tried"]] == [False, True]
     assert rec["previews_tried"][0]["reason"] == "hold: the object slipped out (test)"
     assert rec["plan"]["info"]["candidate_rank"] == 1
-    assert load_approval(out / "approval.json").verdict == "pass"
+    assert load_approval(tmp_path / "o" / "approval.json").verdict == "pass"
 
 
 def test_when_every_preview_fails_the_first_is_reported_and_not_approved(fixture_dirs, tmp_path, monkeypatch):
@@ -308,23 +315,13 @@ def test_when_every_preview_fails_the_hand_overs_are_drawn_again_without_those_p
                                                                                     monkeypatch):
     """Every candidate of grasps.json fails its preview: the grasp stage's search runs again on the object
     without the refused picks; a redrawn hand-over whose preview passes is the task's plan."""
-    from bimanual_app.tasks import _preview
     from grasping._handover import refused as near_refused
 
     monkeypatch.setenv("BIJCR_APPROVAL_KEY", "test-key")
     scene, work = fixture_dirs
     w = _with_alternative(work, tmp_path)
-    real = _preview.preview_plan
-
-    def only_redrawn_pass(plan, *a, **kw):
-        if not plan.info["source"].startswith("redrawn "):
-            return _preview.PreviewResult(False, "hold: dropped (test)")
-        return real(plan, *a, **kw)
-
-    monkeypatch.setattr(_preview, "preview_plan", only_redrawn_pass)
-    out = tmp_path / "o"
-    assert _run(["handover", scene, "--work", w, "--out", out]) == 0
-    rec = json.loads((out / "task.json").read_text())
+    rec, _ = _handover_failing_previews(monkeypatch, scene, w, tmp_path,
+                                        lambda plan, k: not plan.info["source"].startswith("redrawn "))
     assert rec["success"] is True and rec["redrawn"][0]["object"] == 0 and rec["redrawn"][0]["found"] >= 1
     assert rec["redrawn"][0]["refused_picks"] == 2 and rec["previews_tried"][-1]["success"]
     assert rec["plan"]["info"]["source"].startswith("redrawn objects[0].")
@@ -333,7 +330,7 @@ def test_when_every_preview_fails_the_hand_overs_are_drawn_again_without_those_p
     refused = np.stack([h["giver"]["pick"]["T_b1_g"] for h in [g["handover"], *g["handover_alternatives"]]])
     pick = np.asarray(rec["plan"]["info"]["grasps"]["pick"]["T_b1_g"])
     assert not near_refused(pick[None], refused)[0]  # another pick than the two that failed
-    assert load_approval(out / "approval.json").verdict == "pass"
+    assert load_approval(tmp_path / "o" / "approval.json").verdict == "pass"
 
 
 def _previews_in_order(fixture_dirs, tmp_path, monkeypatch, object_1_plans: bool) -> list:
