@@ -105,7 +105,7 @@ def test_ctrl_c_in_a_task_stops_the_whole_run(scene, tmp_path, monkeypatch, caps
     """Ctrl-C during a task stage ends `bijcr run` at once with exit code 130: the next task does not start,
     no report claims a finished run, the finished stages keep their results and records, and the
     interrupted stage leaves no result or record."""
-    import bimanual_app.tasks._run as task_run
+    import bimanual_app.tasks as tasks
 
     started = []
 
@@ -113,7 +113,9 @@ def test_ctrl_c_in_a_task_stops_the_whole_run(scene, tmp_path, monkeypatch, caps
         started.append(opts.task)
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(task_run, "run_task", interrupted)
+    # patched where the run looks it up: the package's lazy export (kept on the package once first read), so
+    # that the package does not keep the patched function for the tests after this one
+    monkeypatch.setattr(tasks, "run_task", interrupted)
     out = tmp_path / "out"
     out.mkdir()
     (out / "report.html").write_text("an earlier run's report")  # no longer describes what is in OUT
