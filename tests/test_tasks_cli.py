@@ -333,6 +333,27 @@ def test_when_every_preview_fails_the_hand_overs_are_drawn_again_without_those_p
     assert load_approval(tmp_path / "o" / "approval.json").verdict == "pass"
 
 
+def test_a_redraw_that_cannot_run_leaves_the_task_failed_as_before(fixture_dirs, tmp_path, monkeypatch):
+    """The redraw's grasp search refuses its inputs: the task ends with its first failed preview, as without
+    the redraw, and task.json says why the redraw did not run."""
+    import grasping
+    from bimanual_app.io_utils import InputError, Problem
+    from bimanual_app.tasks import _preview
+
+    def refuse(cloud, *a, **kw):
+        raise InputError(Problem(str(cloud), "views", "unreadable (test)", "re-run bijcr calibrate"))
+
+    monkeypatch.setenv("BIJCR_APPROVAL_KEY", "test-key")
+    monkeypatch.setattr(grasping, "redraw_handovers", refuse)
+    monkeypatch.setattr(_preview, "preview_plan", lambda *a, **kw: _preview.PreviewResult(False, "hold: dropped"))
+    scene, work = fixture_dirs
+    out = tmp_path / "o"
+    assert _run(["handover", scene, "--work", _with_alternative(work, tmp_path), "--out", out]) == 1
+    rec = json.loads((out / "task.json").read_text())
+    assert rec["failed_stage"] == "preview" and "2 plans previewed, none passed" in rec["reason"]
+    assert "unreadable (test)" in rec["redrawn"][0]["error"] and "found" not in rec["redrawn"][0]
+
+
 def _previews_in_order(fixture_dirs, tmp_path, monkeypatch, object_1_plans: bool) -> list:
     """The (object, candidate) previewed, in order, when every preview fails; plans are object 0's first
     candidate's (the geometry is beside the point), and object 1's fail to plan unless ``object_1_plans``."""

@@ -476,7 +476,11 @@ def _redraw(opts, inputs, robot, rec: dict, s: _Search) -> None:
         _log(opts, f"object {o}: every hand-over previewed failed; its hand-overs drawn again without "
                    f"{len(refused)} refused pick(s)")
         p = inputs.paths
-        found = redraw_handovers(p.cloud, p.segments, p.calibration, o, refused)
+        try:
+            found = redraw_handovers(p.cloud, p.segments, p.calibration, o, refused)
+        except InputError as e:  # the task ends as it would have without the redraw, saying why it did not run
+            rec["redrawn"].append({"object": o, "refused_picks": len(refused), "error": str(e).splitlines()[0]})
+            continue
         rec["redrawn"].append({"object": o, "refused_picks": len(refused), "found": len(found)})
         if not found:
             continue
