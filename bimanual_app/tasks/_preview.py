@@ -230,12 +230,13 @@ def phase_state(phase: str, s: HoldSample) -> dict:
 def last_loss(track: list[dict]) -> dict | None:
     """Where the object of a preview's ``object_track`` (:func:`phase_state` entries) was last lost: ``{"held_after":
     the last phase after which an arm held it (None: no arm ever did), "by": those arms, "lost_after": the next
-    phase, "rise_m": its height then}``; None when an arm held it at the end or the track is empty."""
+    phase (None when none held it), "rise_m": its height then (at the end when none held it)}``; None when an
+    arm held it at the end or the track is empty."""
     held = [bool(e["held_by"]) for e in track]
     if not track or held[-1]:
         return None
     if not any(held):
-        return {"held_after": None, "by": [], "lost_after": track[0]["phase"], "rise_m": track[-1]["rise_m"]}
+        return {"held_after": None, "by": [], "lost_after": None, "rise_m": track[-1]["rise_m"]}
     k = max(i for i in range(len(track) - 1) if held[i] and not held[i + 1])
     return {"held_after": track[k]["phase"], "by": track[k]["held_by"], "lost_after": track[k + 1]["phase"],
             "rise_m": track[k + 1]["rise_m"]}

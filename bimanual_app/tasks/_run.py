@@ -464,6 +464,7 @@ def _redraw(opts, inputs, robot, rec: dict, s: _Search) -> None:
     from grasping import redraw_handovers
 
     from ._grasps import handover_candidates
+    from ._planners import _used
 
     if opts.task != "handover" or s.chosen is not None or not s.attempts or "preview-redraw" in opts.leave_out:
         return
@@ -493,7 +494,7 @@ def _redraw(opts, inputs, robot, rec: dict, s: _Search) -> None:
         s.next_k[o] = 0
         _try_object(opts, inputs, robot, o, cands, rec, s, previews=REDRAW_PREVIEWS)
     if s.chosen is not None:
-        s.chosen.plan.info.setdefault("fallbacks", []).append("preview-redraw")  # as the planner's own record theirs
+        _used(s.chosen.plan, "preview-redraw")
 
 
 def _no_plan_failure(s: _Search) -> tuple[str, str]:
