@@ -825,3 +825,36 @@ def test_a_reach_blocked_open_at_its_start_and_at_its_goals_names_what_blocks_th
         _free_opening(m, TaskPlan(start, {"primary": 0.0}), ["primary"], start, [goal], ctx, {"primary": 0.0},
                       {"primary": 0.07})
     assert e.value.stage == "reach" and "start" not in e.value.message.split("(")[0]
+
+
+def test_an_approach_through_the_wrist_singularity_is_checked_as_the_straight_move_runs_it():
+    """A horizontal approach along the forearm (a bench scene's receiving grasp): joint 5 goes from +0.2 to
+    -0.25 rad, so the line passes the wrist singularity, and the IK chain seeded along it turns joints 4 and 6
+    until joint 4 meets its limit and flips the wrist (a branch switch however split). Moving the joints
+    directly keeps the gripper on the line: ``TaskMotion.straight`` (what ``cartesian`` runs) follows it, and
+    the approach check keeps that pre-grasp solution instead of refusing every one."""
+    from _task_fixtures import FIX_T_B1_B2, box_surface_points, table_points
+
+    from bimanual_app.robots import load_robot
+    from bimanual_app.tasks._motion import TaskMotion, line_poses
+    from bimanual_app.tasks._planners import _approachable
+
+    robot = load_robot("piper")
+    obj = box_surface_points([0.3, 0.3, 0.03], [0.05, 0.05, 0.06])
+    motion = TaskMotion(robot, FIX_T_B1_B2, np.vstack([table_points(), obj]), obj, obj)
+    q_pre = np.array([-0.045, 0.132, -0.196, 0.037, 0.199, -0.037])
+    q = np.array([-0.031, 0.573, -0.185, 0.028, -0.254, -0.028])
+    T_pre, T = robot.fk_link(np.stack([q_pre, q]), robot.tcp_link)
+    with pytest.raises(PlanFailure, match="another joint branch"):
+        motion.ik_path({"primary": line_poses(T_pre, T)}, {"primary": q_pre})
+    Q = motion.straight({"primary": (T_pre, T)}, {"primary": q_pre})["primary"]
+    np.testing.assert_allclose(Q[0], q_pre, atol=1e-9)
+    np.testing.assert_allclose(robot.fk_link(Q[-1:], robot.tcp_link)[0], T, atol=1e-4)
+    assert np.abs(np.diff(Q, axis=0)).max() < 0.05  # no joint jumps on the way
+    np.testing.assert_allclose(_approachable(motion, "primary", q_pre[None], T_pre, T), q_pre[None])
+    # neither way: the same line 40 cm on (through the same flip) to a pose whose joints, moved directly,
+    # take the gripper centimetres off the line, is still refused
+    T_far = T.copy()
+    T_far[:3, 3] += 0.4 * T[:3, 2]
+    with pytest.raises(PlanFailure, match=r"another joint branch.*moving the joints directly strays"):
+        _approachable(motion, "primary", q_pre[None], T_pre, T_far)

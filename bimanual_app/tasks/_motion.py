@@ -326,15 +326,7 @@ class TaskMotion:
             n = len(next(iter(given.values())))
             if any(len(v) != n for v in given.values()) or pairs:
                 raise ValueError("cartesian: give either waypoint arrays of one length for every arm, or (from, to) pairs")
-        else:
-            n = max(len(line_poses(T0, T1)) for T0, T1 in pairs.values())
-        poses = {a: given[a] if a in given else line_poses(*pairs[a], n=n) for a in arms}
-        try:
-            Qs = self.ik_path(poses, q_now)
-        except PlanFailure as e:
-            if given or e.stage != "cartesian":
-                raise
-            Qs = self._joint_line(pairs, q_now, n, e)
+        Qs = self.ik_path(given, q_now) if given else self.straight(pairs, q_now)
         paths = [Qs[a] for a in arms]
         W = np.concatenate(paths, axis=1)
         hold = {a: q_now[a] for a in ("primary", "secondary") if a not in arms}
@@ -376,6 +368,22 @@ class TaskMotion:
                 rep = validate_samples(JointSpace(self.world, arms, {}), times[sel] - times[sel][0], Q[sel])
             if not rep.ok:
                 raise PlanFailure("validation", f"the whole plan ({t0:.2f}-{t1:.2f} s): " + "; ".join(rep.problems[:2]))
+
+    def straight(self, pairs: dict, q_now: dict) -> dict:
+        """Joint waypoints of straight gripper moves, as ``cartesian`` runs them (no timing, no collision check).
+
+        pairs: arm -> (T_from (4,4), T_to (4,4)) in b1; q_now: arm -> (J,) at T_from. Returns arm -> (K, J): the
+        IK chain on one branch (``ik_path``), else, where that chain leaves its branch, the joints moved
+        directly to the goal (``_joint_line``). Raises PlanFailure when neither follows the line. The planner's
+        checks of a straight move ask this, so that they accept exactly the moves ``cartesian`` can run.
+        """
+        n = max(len(line_poses(T0, T1)) for T0, T1 in pairs.values())
+        try:
+            return self.ik_path({a: line_poses(T0, T1, n=n) for a, (T0, T1) in pairs.items()}, q_now)
+        except PlanFailure as e:
+            if e.stage != "cartesian":
+                raise
+            return self._joint_line(pairs, q_now, n, e)
 
     def _joint_line(self, pairs: dict, q_now: dict, n: int, err: PlanFailure, tol_m: float = 0.01,
                     tol_rad: float = 0.1) -> dict:

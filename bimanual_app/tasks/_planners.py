@@ -263,43 +263,51 @@ def _giver_retreat(motion: TaskMotion, gt: GraspSpec, q: dict, held: tuple, up: 
     raise err or PlanFailure("reach", f"the {gt.arm} has no direction to back off along")
 
 
+def _straight_failure(motion: TaskMotion, arm: str, q: np.ndarray, T0: np.ndarray, T1: np.ndarray,
+                      how: str) -> PlanFailure | None:
+    """Why ``arm`` at ``q`` (J,), its gripper at T0 (4, 4), cannot move straight to T1 (4, 4), or None: ``how``
+    'branch' asks for the IK chain on one branch (``TaskMotion.ik_path``), 'straight' for any move
+    ``cartesian`` runs (``TaskMotion.straight``: that chain, else the joints moved directly where the gripper
+    keeps to the line)."""
+    try:
+        if how == "branch":
+            motion.ik_path({arm: line_poses(T0, T1)}, {arm: q})
+        else:
+            motion.straight({arm: (T0, T1)}, {arm: q})
+        return None
+    except PlanFailure as e:
+        return e
+
+
 def _approachable(motion: TaskMotion, arm: str, sols: np.ndarray, T_pre: np.ndarray, T: np.ndarray) -> np.ndarray:
     """The pre-grasp IK solutions (order kept) from which the straight approach to ``T`` stays on one IK
-    branch (so the OMPL goal and the approach that follows it agree); raises the first failure if none."""
-    ok, err = [], None
-    poses = line_poses(T_pre, T)  # the very waypoints the approach will use
-    for q in sols:
-        try:
-            motion.ik_path({arm: poses}, {arm: q})
-            ok.append(q)
-        except PlanFailure as e:
-            err = err or e
-    if not ok:
-        raise err
-    return np.stack(ok)
+    branch (so the OMPL goal and the approach that follows it agree); where none does, those from which
+    ``cartesian`` runs the approach all the same (the joints moved directly: the line passes a wrist
+    singularity, where the IK chain flips the wrist); raises the first solution's failure if none."""
+    for how in ("branch", "straight"):
+        fails = [_straight_failure(motion, arm, q, T_pre, T, how) for q in sols]
+        ok = [q for q, f in zip(sols, fails) if f is None]
+        if ok:
+            return np.stack(ok)
+    raise fails[0]
 
 
 def _retreatable(motion: TaskMotion, arm: str, sols: np.ndarray, T: np.ndarray, up: np.ndarray) -> np.ndarray:
     """Of the IK solutions ``sols`` (K, J) of gripper pose ``T`` (4, 4), those (order kept) from which the open
-    gripper can back off ``RETREAT_MIN`` along one of its retreat directions on one IK branch; all of them
+    gripper can back off ``RETREAT_MIN`` along one of its retreat directions on one IK branch, else (where
+    none can) those from which ``cartesian`` runs such a retreat all the same (``_approachable``); all of them
     when none can (the retreat then reports why).
 
     A free motion's goal decides the IK branch of the straight moves after it: at a transfer pose, a
     solution with a wrist joint at its limit (the same gripper pose with joints 4 and 6 turned half a turn
     and joint 5 negated) reaches the pose, but no retreat from it stays on its branch."""
-    lines = [line_poses(T, translate_along(T, d, RETREAT_MIN)) for _, d in _retreat_directions(T, up)]
-
-    def follows(q):
-        for poses in lines:
-            try:
-                motion.ik_path({arm: poses}, {arm: q})
-                return True
-            except PlanFailure:
-                pass
-        return False
-
-    ok = np.array([follows(q) for q in sols], dtype=bool)
-    return sols[ok] if ok.any() else sols
+    ends = [translate_along(T, d, RETREAT_MIN) for _, d in _retreat_directions(T, up)]
+    for how in ("branch", "straight"):
+        ok = np.array([any(_straight_failure(motion, arm, q, T, T1, how) is None for T1 in ends) for q in sols],
+                      dtype=bool)
+        if ok.any():
+            return sols[ok]
+    return sols
 
 
 def _goal_ik(motion: TaskMotion, arm: str, T: np.ndarray, seeds: list) -> np.ndarray:
