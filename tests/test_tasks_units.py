@@ -28,6 +28,23 @@ def test_timeline_joins_phases_on_one_clock_and_idle_arms_hold():
     assert [s["phase"] for s in plan.summary()] == ["a", "b"] and plan.summary()[1]["duration_s"] == 2.0
 
 
+def test_opening_spans_cut_a_phase_where_its_gripper_starts_to_open():
+    """The whole-plan check takes the fingers of each span at their widest: an arm that moves with its gripper
+    closed and opens once there is checked closed on the way and open only where it opens (a receiver that
+    starts next to the table would otherwise be checked with its fingers open at its start). A gripper
+    that opens on the way is checked open all along; fingers resting on a held object stay at that width."""
+    q0 = {"primary": np.zeros(6), "secondary": np.ones(6)}
+    plan = TaskPlan(q0, {"primary": 0.0, "secondary": 0.03})
+    q1 = np.full(6, 0.2)
+    plan.add(Phase("reach", {"primary": JointTrajectory([0, 1.0, 2.0, 2.5, 3.0], [q0["primary"], q1 / 2, q1, q1, q1],
+                                                        [0.0, 0.0, 0.0, 0.035, 0.07])}, resting={"secondary": 0.04}))
+    plan.add(Phase("ramp", {"primary": JointTrajectory([0, 1.0], [q1, q0["primary"]], [0.07, 0.0])}))
+    spans = plan.opening_spans()
+    assert [(a, b) for a, b, _ in spans] == [(0.0, 2.0), (2.0, 3.0), (3.0, 4.0)]
+    assert [w["primary"] for _, _, w in spans] == [0.0, 0.07, 0.07]
+    assert [w["secondary"] for _, _, w in spans] == [0.04, 0.04, 0.03]  # resting on the object, then as it is
+
+
 def _grasp(x, score=0.5):
     T = np.eye(4)
     T[:3, 3] = [x, 0, 0.05]
@@ -319,7 +336,8 @@ def test_handover_moves_a_secondary_in_the_way_aside_during_the_transfer():
         < choice.receiver.T_b1_g[:3, 3] @ choice.receiver.T_b1_g[:3, 2] - 0.02  # backed off along its approach
     spans = plan.opening_spans()
     names = [p.name for p in plan.phases]
-    release = spans[names.index("release")][2]
+    t_release = sum(p.duration for p in plan.phases[:names.index("release")])
+    release = next(w for t0, _, w in spans if t0 >= t_release - 1e-9)
     assert release["secondary"] == pytest.approx(choice.receiver.contact_width)  # resting on the object, not 0
     motion.validate_timeline(plan.timeline(), spans)  # raises if any sample collides or breaks a limit
 

@@ -350,7 +350,8 @@ class TaskMotion:
         collisions (arms against the scene with the target object cut out, and against each other)
         densely, with ``validate_samples``. Raises PlanFailure.
 
-        openings: ``(t_start, t_end, arm -> opening)`` spans (the phases, :meth:`TaskPlan.opening_spans`):
+        openings: ``(t_start, t_end, arm -> opening)`` spans (the phases, cut where grippers start or stop
+            moving: :meth:`TaskPlan.opening_spans`):
             the fingers' shapes in each span are those of its widest opening, so an arm holding an object
             is checked with its fingers where they are, not closed. Default: one span, the world's openings.
         """

@@ -141,13 +141,14 @@ class TaskPlan:
         return out
 
     def opening_spans(self) -> list[tuple[float, float, dict]]:
-        """Per phase on the shared clock: ``(t_start, t_end, arm -> widest gripper opening in it)``, no
-        narrower than where its fingers rest on a held object (``Phase.resting``)."""
+        """Spans of the shared clock with ``(t_start, t_end, arm -> widest gripper opening in it)``, no narrower
+        than where its fingers rest on a held object (``Phase.resting``): each phase cut where its grippers
+        start or stop moving (``_width_runs``), so that an arm opening at the end of a motion is checked with its
+        fingers as they were on the way and open only where they open."""
         out, t0 = [], 0.0
         for k, ph in enumerate(self.phases):
-            trs = self.phase_trajectories(k)
-            out.append((t0, t0 + ph.duration, {a: max(float(np.max(tr.gripper)), float(ph.resting.get(a, 0.0)))
-                                               for a, tr in trs.items()}))
+            for a, b, widest in _width_runs(self.phase_trajectories(k)):
+                out.append((t0 + a, t0 + b, {arm: max(w, float(ph.resting.get(arm, 0.0))) for arm, w in widest.items()}))
             t0 += ph.duration
         return out
 
@@ -155,3 +156,17 @@ class TaskPlan:
         """Per phase: name, duration (s), number of waypoints, planner, note."""
         return [{"phase": ph.name, "duration_s": round(ph.duration, 3), "n_waypoints": ph.n_waypoints,
                  "arms": sorted(ph.trajectories), "planner": ph.planner, "note": ph.note} for ph in self.phases]
+
+
+def _width_runs(trs: dict) -> list[tuple[float, float, dict]]:
+    """One phase's trajectories (arm -> JointTrajectory, both arms, one clock from 0) cut into runs where every
+    gripper holds its width and runs where some gripper moves: ``(t_start, t_end, arm -> widest opening)``
+    per run (widths are linear between samples, so the widest is at a sample)."""
+    times = np.unique(np.concatenate([np.asarray(tr.times, dtype=np.float64) for tr in trs.values()]))
+    G = {a: np.interp(times, tr.times, tr.gripper) for a, tr in trs.items()}
+    if len(times) < 2:
+        return [(0.0, float(times[-1]), {a: float(g.max()) for a, g in G.items()})]
+    moving = np.any([np.abs(np.diff(g)) > 1e-9 for g in G.values()], axis=0)  # (T-1,) per interval
+    cuts = np.r_[0, np.nonzero(np.diff(moving.astype(int)))[0] + 1, len(moving)]  # interval runs
+    return [(float(times[i]), float(times[j]), {a: float(g[i:j + 1].max()) for a, g in G.items()})
+            for i, j in zip(cuts[:-1], cuts[1:])]
