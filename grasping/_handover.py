@@ -50,6 +50,7 @@ from ._collision import (
     GripperCollider,
     PlacedGrippers,
     PointClearance,
+    SceneOctree,
     grippers_collide_many,
     grippers_distance,
     place_grippers,
@@ -114,6 +115,8 @@ class HandoverParams:
     refused_picks: K giver picks T_b1_g (4, 4) a task's physics preview saw fail (``grasping.redraw_handovers``):
         picks within ``REFUSED_SHIFT`` m and ``REFUSED_TURN`` rad of one (either way round its approach) are
         not given from.
+    receiver_scene_margin: at the transfer pose, the receiver's open gripper, swept from its pre-grasp, keeps
+        this far from the rest of the scene (the task planner's contact margin, which its approach keeps there).
     b2b_sigma_m, b2b_sigma_rad: 1-sigma error of the calibrated ``T_b1_b2`` (translation per axis, rotation)
         (``bijcr grasp`` takes them from calibration.json's ``uncertainty``). The secondary's idea of where the
         object is at the transfer pose is off by about ``sqrt(s_m^2 + (s_rad d)^2)`` along any axis, d = the
@@ -150,6 +153,7 @@ class HandoverParams:
     pairs: PairParams = PairParams()
     towards_object: tuple[float, ...] = (0.5, 1.0)
     refused_picks: tuple = ()
+    receiver_scene_margin: float = 0.003
 
 
 # The hand-over search's fallbacks by name (``grasp_stage(leave_out=)``, bench/tasks.py --leave-out): each
@@ -516,7 +520,7 @@ def plan_handovers(geo: ObjectGeometry, support: Support, giver: ArmGrasps, free
     Arguments as for :func:`plan_handover`."""
     n = params.alternatives if n is None else int(n)
     stats = {"transfer_poses": 0, "object_in_scene": 0, "giver_reached": 0, "giver_goal_blocked": 0,
-             "clear_receivers": 0, "receiver_candidates": 0, "receiver_reached": 0}
+             "clear_receivers": 0, "receiver_candidates": 0, "receiver_reached": 0, "receiver_in_scene": 0}
     found: list[Handover] = []
     if len(giver) == 0 or len(free) == 0 or "secondary" not in arms or n < 1:
         return found, stats
@@ -551,6 +555,38 @@ def _scene_clearance(geo: ObjectGeometry, support: Support, roles: _Roles, param
                           (targets.min(axis=0) - radius, targets.max(axis=0) + radius)), obj_pts
 
 
+@dataclass(frozen=True)
+class _ReceiverScene:
+    """The rest of the scene near the transfer poses (``octree``) and the receiver's gripper swept from its
+    pre-grasp (``collider``): a receiver grasp whose gripper comes within ``margin`` of it ``touches``."""
+
+    octree: SceneOctree
+    collider: GripperCollider
+    margin: float
+
+    def touches(self, T_b1_g: np.ndarray, width: float) -> bool:
+        """Whether the open gripper at ``T_b1_g`` (4, 4), swept back to its pre-grasp, meets the scene."""
+        return bool(self.collider.collides(self.octree, T_b1_g[None], np.array([width]), swept=True,
+                                           margin=self.margin)[0])
+
+
+def _receiver_scene(geo: ObjectGeometry, support: Support, roles: _Roles, params: HandoverParams, gripper,
+                    obstacles_b1) -> _ReceiverScene | None:
+    """The scene check of the receivers at the transfer poses (the points within reach of a receiver's gripper
+    at one of them), or None without obstacles. The pick's own check leaves the gripper against the map to
+    the sampler; in the air nothing else checks it, and the task's approach there keeps its contact margin."""
+    if obstacles_b1 is None or not len(obstacles_b1):
+        return None
+    targets, _ = _transfer_targets(geo, support, roles, params)
+    # a receiver's gripper and its sweep reach at most the object's radius, the fingers, palm and the pre-grasp
+    reach = float(np.linalg.norm(geo.extent)) / 2 + params.receiver_pregrasp + 0.15
+    P = np.asarray(obstacles_b1, dtype=np.float64).reshape(-1, 3)
+    near = np.all((P > targets.min(axis=0) - reach) & (P < targets.max(axis=0) + reach), axis=1)
+    return _ReceiverScene(SceneOctree(P[near], RECEIVER_SCENE_RESOLUTION), GripperCollider(gripper, params.receiver_pregrasp),
+                          params.receiver_scene_margin)
+
+
+RECEIVER_SCENE_RESOLUTION = 0.005  # m: voxels of the scene the receivers are checked against (the task's map)
 RANK_CHUNK = 64  # transfer poses scored at a time (scene clearance, the receivers' prior) by _ranked_transfers
 
 
@@ -670,10 +706,10 @@ def _receiver_order(roles: _Roles, Rt: np.ndarray, free: GraspSet, clear: np.nda
     return order, catch, margin
 
 
-def _first_receiver(geo, giver, free, roles, rec_reach, collider, params, gi, move, Gt, rg, clear,
+def _first_receiver(geo, giver, free, roles, rec_reach, rec_scene, collider, params, gi, move, Gt, rg, clear,
                     stats) -> Handover | None:
-    """The hand-over with the first clear receiver that the receiving arm reaches (and the roles' arm-against-arm
-    ``check`` passes) for the
+    """The hand-over with the first clear receiver that the receiving arm reaches (its gripper clear of the
+    scene, ``rec_scene``, and the roles' arm-against-arm ``check`` passing) for the
     giver grasp ``gi`` moved by ``move`` to ``Gt`` (reached as ``rg``), or None."""
     w_closed = float(giver.grasps.contact_width[gi])
     Rt = move @ free.T_b1_g[clear]
@@ -689,6 +725,9 @@ def _first_receiver(geo, giver, free, roles, rec_reach, collider, params, gi, mo
         stats["receiver_reached"] += 1
         R_k = Rt[order[n]]
         R_used = R_k if not rr.flipped[n] else rotate_about_approach(R_k)
+        if rec_scene is not None and rec_scene.touches(R_used, float(free.width[k])):
+            stats["receiver_in_scene"] += 1
+            continue
         if roles.check is not None:
             ok2, _ = roles.check(rg.q[0], w_closed, rr.q[n], float(free.width[k]))
             if not ok2:
@@ -718,6 +757,7 @@ def _search(geo, support, giver, free, roles, collider, params, clear, obstacles
     goal_problems = getattr(prim.reach, "goal_problems", None)
     T_b_b1 = inv_T(prim.T_b1_b)
     scene_clear, obj_pts = _scene_clearance(geo, support, roles, params, obstacles_b1, object_points_b1)
+    rec_scene = _receiver_scene(geo, support, roles, params, collider.gripper, obstacles_b1)
     cands = _ranked_transfers(geo, support, giver, free, roles, collider, params, clear, scene_clear, obj_pts, stats)
     for _, _, gi, T_move, clear in itertools.islice(cands, params.max_transfer_checks):
         stats["transfer_poses"] += 1
@@ -737,7 +777,7 @@ def _search(geo, support, giver, free, roles, collider, params, clear, obstacles
             if scene_clear is not None and not _clear_of_scene(scene_clear, move, obj_pts):
                 stats["object_in_scene"] += 1  # turned with the giver's wrist, the object meets the scene
                 continue
-        found = _first_receiver(geo, giver, free, roles, rec_reach, collider, params, gi, move, Gt, rg,
+        found = _first_receiver(geo, giver, free, roles, rec_reach, rec_scene, collider, params, gi, move, Gt, rg,
                                 clear, stats)
         if found is not None:
             yield found

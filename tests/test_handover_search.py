@@ -123,6 +123,37 @@ def test_plan_handovers_finds_poses_where_each_arm_reaches_only_from_its_own_sid
     assert np.allclose(h.T_move[:3, :3] @ op.geometry.centre + h.T_move[:3, 3], h.centre)
 
 
+def test_a_receiver_whose_gripper_meets_the_scene_at_the_transfer_pose_is_skipped():
+    """At the transfer pose the receiver's open gripper, swept from its pre-grasp, keeps the task planner's
+    contact margin from the rest of the scene (the pick's own checks leave the gripper against the map to the
+    sampler, which samples the receivers in free space): a cluster of points floating where the hand-over
+    above puts the receiver's palm makes the search skip that receiver and count it."""
+    from grasping import Arm, PlanParams, plan_grasps, scene_cloud
+
+    T12 = facing_T_b1_b2(0.6)
+    P, L = make_cloud([Obj("box", (0.3, 0.2), (0.05, 0.05, 0.08), 0.3)], table_size=(0.8, 0.8))
+    arms = {"primary": Arm("primary", np.eye(4), _Cone(10.0, (0.0, 5.0))),
+            "secondary": Arm("secondary", T12, _Cone(8.0, (35.0, 45.0)))}
+    params = PlanParams(retry_factor=1)
+    op = plan_grasps(scene_cloud(P, L), arms=arms, T_b1_b2=T12, params=params).objects[0]
+    assert op.stats["handover"]["receiver_in_scene"] == 0
+    R = op.handover.receiver["T_b1_g"]
+    palm = R[:3, :3] @ np.array([0.0, 0.0, -0.07]) + R[:3, 3]
+    blob = palm + np.random.default_rng(0).uniform(-0.01, 0.01, (200, 3))  # label -1: no object, in the air
+    op2 = plan_grasps(scene_cloud(np.vstack([P, blob]), np.r_[L, np.full(len(blob), -1)]), arms=arms, T_b1_b2=T12,
+                      params=params).objects[0]
+    assert op2.stats["handover"]["receiver_in_scene"] > 0
+    if op2.handover is not None:  # another receiver, or another transfer pose: its gripper clear of the blob
+        from grasping import load_gripper
+        from grasping._collision import points_in_gripper
+
+        R2, w2 = op2.handover.receiver["T_b1_g"], op2.handover.receiver["width"]
+        for back in np.linspace(0.0, 0.06, 7):  # at the grasp and on the way in from the pre-grasp
+            T = R2.copy()
+            T[:3, 3] -= back * R2[:3, 2]
+            assert not points_in_gripper(load_gripper(), T, w2, blob).any()
+
+
 class _GoalBlocked(_Cone):
     """A ``_Cone`` whose every configuration comes within the free-motion margin of the scene
     (``ArmReach.goal_problems``): its pre-grasps pass (the filter's own check), its free motions' goals not."""
