@@ -555,6 +555,9 @@ def _scene_clearance(geo: ObjectGeometry, support: Support, roles: _Roles, param
                           (targets.min(axis=0) - radius, targets.max(axis=0) + radius)), obj_pts
 
 
+RECEIVER_SCENE_RESOLUTION = 0.005  # m: voxels of the scene the receivers are checked against (the task's map)
+
+
 @dataclass(frozen=True)
 class _ReceiverScene:
     """The rest of the scene near the transfer poses (``octree``) and the receiver's gripper swept from its
@@ -578,15 +581,17 @@ def _receiver_scene(geo: ObjectGeometry, support: Support, roles: _Roles, params
     if obstacles_b1 is None or not len(obstacles_b1):
         return None
     targets, _ = _transfer_targets(geo, support, roles, params)
-    # a receiver's gripper and its sweep reach at most the object's radius, the fingers, palm and the pre-grasp
-    reach = float(np.linalg.norm(geo.extent)) / 2 + params.receiver_pregrasp + 0.15
+    collider = GripperCollider(gripper, params.receiver_pregrasp)
+    # a receiver's grasp lies within the object's radius of its centre, and its gripper, open and swept from
+    # the pre-grasp, within its shapes' bounding spheres of the grasp (a hand-set 21 cm fell 3 cm short of them)
+    swept = place_grippers(collider, np.eye(4)[None], np.array([gripper.max_width]), swept=True)
+    reach = (float(np.linalg.norm(geo.extent)) / 2 + float(np.max(np.linalg.norm(swept.box_c[0], axis=1) + swept.radius))
+             + params.receiver_scene_margin + RECEIVER_SCENE_RESOLUTION)  # and what the check's broad phase adds
     P = np.asarray(obstacles_b1, dtype=np.float64).reshape(-1, 3)
     near = np.all((P > targets.min(axis=0) - reach) & (P < targets.max(axis=0) + reach), axis=1)
-    return _ReceiverScene(SceneOctree(P[near], RECEIVER_SCENE_RESOLUTION), GripperCollider(gripper, params.receiver_pregrasp),
-                          params.receiver_scene_margin)
+    return _ReceiverScene(SceneOctree(P[near], RECEIVER_SCENE_RESOLUTION), collider, params.receiver_scene_margin)
 
 
-RECEIVER_SCENE_RESOLUTION = 0.005  # m: voxels of the scene the receivers are checked against (the task's map)
 RANK_CHUNK = 64  # transfer poses scored at a time (scene clearance, the receivers' prior) by _ranked_transfers
 
 
